@@ -1,0 +1,25 @@
+"""Error types. A :class:`GtsweepError` is a user-facing problem: the CLI prints its message as one line."""
+
+
+class GtsweepError(Exception):
+    """A problem the user can fix (bad input, unknown name, bad file); printed as one line, exit code 2."""
+
+
+class UnknownMethod(GtsweepError):
+    """A method name that no registry knows."""
+
+    def __init__(self, family: str, name: str, choices):
+        self.family, self.name, self.choices = family, name, sorted(choices)
+        super().__init__(f"unknown {family} '{name}'; valid choices: {', '.join(self.choices)}")
+
+
+class BadInput(GtsweepError):
+    """Missing, unreadable or malformed input (image, pose file, data set folder, override)."""
+
+
+class NotApplicable(GtsweepError):
+    """A method pairing that cannot be evaluated (the survey's NA cells); ``reason`` says why."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+        super().__init__(reason)

@@ -1,0 +1,45 @@
+"""Keypoints as plain arrays.
+
+``cv2.KeyPoint`` does not pickle, so keypoints travel between processes (and into the cache) as an ``(N, 7)``
+float64 array with the columns of :data:`COLUMNS`. ``angle`` is -1 where the detector gives no orientation
+(OpenCV's convention). Every metric only needs the first three columns (x, y, size).
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+COLUMNS = ("x", "y", "size", "angle", "response", "octave", "class_id")
+X, Y, SIZE, ANGLE, RESPONSE, OCTAVE, CLASS_ID = range(len(COLUMNS))
+
+
+def empty() -> np.ndarray:
+    """An empty keypoint array."""
+    return np.zeros((0, len(COLUMNS)), dtype=np.float64)
+
+
+def to_array(keypoints: Sequence[cv2.KeyPoint]) -> np.ndarray:
+    """Convert OpenCV keypoints to an ``(N, 7)`` array (see :data:`COLUMNS`)."""
+    if len(keypoints) == 0:
+        return empty()
+    return np.array(
+        [(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave, k.class_id) for k in keypoints],
+        dtype=np.float64,
+    )
+
+
+def to_keypoints(array: np.ndarray) -> list[cv2.KeyPoint]:
+    """Convert an ``(N, 7)`` array back to OpenCV keypoints (octave and class_id rounded to int)."""
+    a = np.asarray(array, dtype=np.float64).reshape(-1, len(COLUMNS))
+    return [
+        cv2.KeyPoint(float(x), float(y), float(s), float(ang), float(r), int(round(o)), int(round(c)))
+        for x, y, s, ang, r, o, c in a
+    ]
+
+
+def sort_by_response(array: np.ndarray) -> np.ndarray:
+    """Keypoints sorted by response, largest first; ties keep their detection order (stable)."""
+    order = np.argsort(-array[:, RESPONSE], kind="stable")
+    return array[order]
