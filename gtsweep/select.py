@@ -85,8 +85,8 @@ def _first_in_each_cell(cell_x: np.ndarray, cell_y: np.ndarray, n_cols: int, n_r
 def _ssc_cover(cell_x: np.ndarray, cell_y: np.ndarray, candidates: np.ndarray, n_cols: int, n_rows: int) -> list:
     """One SSC coverage pass over a grid of ``(n_rows + 1) x (n_cols + 1)`` cells of side ``width / 2``.
 
-    A candidate whose cell is still uncovered is selected and covers the cells within two cells of it (a square
-    of side ``2 * width``). ``candidates`` are indices (ascending, i.e. in response order) of the first keypoint
+    A candidate whose cell is still uncovered is selected and covers the 5 x 5 cells centred on its own (about
+    +-width pixels around it). ``candidates`` are indices (ascending, i.e. in response order) of the first keypoint
     in each occupied cell: a later keypoint in a cell can never be selected, since its cell is covered by then.
     """
     stride = n_cols + 1
@@ -116,7 +116,7 @@ def select_anms(keypoints, image_shape, n: int = 1000, tolerance: float = 0.2) -
     """
     height, width = _check_shape(image_shape)
     n = _check_positive_int("n", n)
-    if not 0.0 <= float(tolerance) < 1.0:
+    if not isinstance(tolerance, (int, float, np.floating)) or not 0.0 <= tolerance < 1.0:
         raise BadInput(f"tolerance must lie in [0, 1), got {tolerance!r}")
     kps = sort_by_response(_check_keypoints(keypoints))
     if len(kps) <= n:
