@@ -1,0 +1,3 @@
+from gtsweep.cli import main
+
+main()

@@ -1,0 +1,72 @@
+"""The Hydra task function: one job = one grid, evaluated by :func:`gtsweep.sweep.run_sweep`."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import hydra
+import pandas as pd
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from gtsweep.cli import SWEEP_RECORD, fail
+from gtsweep.errors import GtsweepError
+from gtsweep.paths import CONF_DIR
+from gtsweep.results import summary_table
+from gtsweep.sweep import SweepOutcome, run_sweep
+
+_sweep_key = ""
+#: The metric shown in the terminal table, per experiment.
+HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success"}
+
+
+def hydra_main(sweep_key: str) -> None:
+    global _sweep_key
+    _sweep_key = sweep_key
+    _app()
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
+def _app(cfg: DictConfig) -> None:
+    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": _sweep_key, "argv": sys.argv[1:]}))
+    try:
+        outcome = run_sweep(cfg, output_dir)
+    except GtsweepError as e:
+        fail(e)
+    print(format_outcome(outcome))
+    if outcome.failed:
+        print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)
+        sys.exit(1)
+
+
+def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
+    """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns."""
+    table = summary_table(outcome.summaries)
+    metric = HEADLINE[outcome.grid.experiment["name"]]
+    columns = "selector" if outcome.grid.experiment["name"] == "detection" else "descriptor"
+    tables = {}
+    for transform, part in table.groupby("transform", sort=False):
+        values = part[metric] if metric in part else pd.Series(float("nan"), index=part.index)
+        shown = values.map(lambda v: "NA" if pd.isna(v) else f"{v:.2f}").where(part["status"] == "ok", "NA")
+        pivot = part.assign(value=shown).pivot_table(index="detector", columns=columns, values="value",
+                                                     aggfunc="first", sort=False)
+        tables[f"{metric} ({transform})"] = pivot
+    return tables
+
+
+def format_outcome(outcome: SweepOutcome) -> str:
+    statuses = pd.Series([s["status"] for s in outcome.summaries])
+    lines = [
+        f"gtsweep: {len(outcome.summaries)} cells ({(statuses == 'ok').sum()} evaluated, "
+        f"{(statuses == 'na').sum()} not applicable, {(statuses == 'error').sum()} failed, "
+        f"{outcome.resumed} kept from an earlier run) in {outcome.seconds:.1f} s",
+        f"keypoint cache: {outcome.stats.cache_hits} hits, {outcome.stats.cache_misses} misses "
+        f"(= detector calls)",
+        f"results: {outcome.table}",
+    ]
+    for title, pivot in headline_tables(outcome).items():
+        lines += ["", title, pivot.to_string()]
+    return "\n".join(lines)
