@@ -52,11 +52,13 @@ def pairing_metrics(view: ViewPair, ref_kps, test_kps, descriptor: str, descript
                     experiment: dict, seed: int = 0, reference_count: int | None = None) -> dict:
     """Describe, match and (for the pose experiment) estimate the pose of one pair (survey 4.2, 4.3).
 
-    ``reference_count`` keeps only the strongest reference keypoints (survey Table 7); keypoints are sorted by
-    response by the selectors. Raises :class:`~gtsweep.errors.NotApplicable` for the survey's NA pairings.
+    ``reference_count`` keeps only the strongest reference keypoints (survey Table 7) and
+    ``experiment["test_count"]`` the strongest test keypoints; the selectors sort keypoints by response. Raises :class:`~gtsweep.errors.NotApplicable` for the survey's NA pairings.
     """
     if reference_count is not None:
         ref_kps = ref_kps[:reference_count]
+    if experiment.get("test_count") is not None:
+        test_kps = test_kps[:experiment["test_count"]]
     ref_kept, ref_desc, t_ref = describe_timed(view.reference, ref_kps, descriptor, detector, **descriptor_params)
     test_kept, test_desc, t_test = describe_timed(view.test, test_kps, descriptor, detector, **descriptor_params)
     start = time.perf_counter()
