@@ -1,0 +1,123 @@
+"""Grid building, the keypoint cache, result files and command-line checks (no data set, no Ray)."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gtsweep import cli
+from gtsweep.cache import KeypointCache, detection_key
+from gtsweep.errors import BadInput, UnknownMethod
+from gtsweep.grid import build_grid
+from gtsweep.results import ResultStore, summarize
+
+PARAMS = {"params": {}}
+
+
+def _cfg(**over):
+    cfg = {"detector": {"akaze": PARAMS, "censure": PARAMS}, "selector": {"nms": {"params": {"n": 10}}},
+           "descriptor": {"akaze": PARAMS, "brief": PARAMS},
+           "transform": {"incremental": {"kind": "pairs"}, "rotation": {"kind": "synthetic", "strengths": [0, 90]}},
+           "experiment": {"name": "pose"}}
+    cfg.update(over)
+    return cfg
+
+
+def test_grid_is_the_product_with_na_cells_marked():
+    grid = build_grid(_cfg())
+    assert len(grid.cells) == 2 * 2 * 2  # detectors x descriptors x transforms (one selector)
+    na = {(c.detector, c.descriptor) for c in grid.cells if c.na_reason}
+    assert na == {("censure", "akaze")}
+
+
+def test_detection_experiment_has_no_descriptor_dimension():
+    grid = build_grid(_cfg(experiment={"name": "detection"}))
+    assert len(grid.cells) == 2 * 2 and all(c.descriptor is None for c in grid.cells)
+
+
+def test_pairings_restrict_the_product():
+    grid = build_grid(_cfg(pairings=[["akaze", "akaze"], ["censure", "brief"]]))
+    assert {(c.detector, c.descriptor) for c in grid.cells} == {("akaze", "akaze"), ("censure", "brief")}
+    with pytest.raises(BadInput, match="not in the grid"):
+        build_grid(_cfg(pairings=[["sift", "sift"]]))
+
+
+def test_grid_rejects_unknown_methods_and_bad_transforms():
+    with pytest.raises(UnknownMethod, match="valid choices"):
+        build_grid(_cfg(detector={"siftt": PARAMS}))
+    with pytest.raises(BadInput, match="strengths"):
+        build_grid(_cfg(transform={"rotation": {"kind": "synthetic", "strengths": ["a"]}}))
+
+
+def test_cell_hash_changes_with_parameters():
+    a, b = build_grid(_cfg()), build_grid(_cfg(selector={"nms": {"params": {"n": 11}}}))
+    assert a.cell_hash(a.cells[0], "fp", 0) != b.cell_hash(b.cells[0], "fp", 0)
+    assert a.cell_hash(a.cells[0], "fp", 0) == build_grid(_cfg()).cell_hash(a.cells[0], "fp", 0)
+    assert a.cell_hash(a.cells[0], "fp", 0) != a.cell_hash(a.cells[0], "fp", 1)
+
+
+def test_cache_round_trip_and_counts(tmp_path):
+    image = np.arange(100, dtype=np.uint8).reshape(10, 10)
+    key = detection_key(image, None, "sift", {"params": {}}, "nms", {"params": {"n": 5}})
+    assert key != detection_key(image, None, "sift", {"params": {}}, "nms", {"params": {"n": 6}})
+    assert key != detection_key(image + 1, None, "sift", {"params": {}}, "nms", {"params": {"n": 5}})
+    keypoints = np.random.default_rng(0).random((7, 7))
+    first = KeypointCache(tmp_path)
+    assert first.get(key) is None and first.misses == 1
+    first.put(key, keypoints, 9, 0.5)
+    second = KeypointCache(tmp_path)
+    found, n, seconds = second.get(key)
+    assert second.hits == 1 and n == 9 and seconds == 0.5 and np.array_equal(found, keypoints)
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_result_store_marks_complete_cells(tmp_path):
+    store = ResultStore(tmp_path)
+    rows = pd.DataFrame({"image": ["a", "b"], "strength": [0.0, 90.0], "pose_success": [1.0, 0.0]})
+    summary = {"key": "k", "hash": "h1", "status": "ok", "methods": {}, **summarize(rows)}
+    assert summary["metrics"]["pose_success"] == 0.5
+    assert summary["by_strength"] == {"0.0": {"pose_success": 1.0}, "90.0": {"pose_success": 0.0}}
+    store.write_cell("k", summary, rows)
+    assert store.complete("k", "h1")["status"] == "ok"
+    assert store.complete("k", "h2") is None  # configuration changed: recompute
+    assert store.rows("k").equals(rows)
+
+
+def test_all_expands_to_every_option():
+    (arg,) = cli.expand_all(["detector=all"])
+    names = arg.split("=[")[1].rstrip("]").split(",")
+    assert {"sift", "akaze", "censure", "msd"} <= set(names) and "all" not in names
+
+
+@pytest.mark.parametrize("args, message", [
+    (["detector=[sift,siftt]"], "unknown detector 'siftt'; valid choices: "),
+    (["descriptor=brieff"], "unknown descriptor 'brieff'"),
+    (["dataset=nope"], "unknown dataset 'nope'"),
+    (["sweeps=table99"], "unknown sweep 'table99'"),
+    (["selector.nms.params.n=abc"], "expected a int like the default 1000, got str"),
+    (["seed=x"], "expected a int"),
+    (["runner.num_cpuz=2"], "unknown config key 'runner.num_cpuz'"),
+    (["detector.sift.params.nfeaturez=3"], "unknown config key"),
+    (["detector.nope.params.x=3"], "unknown detector 'nope'"),
+])
+def test_bad_overrides_fail_in_one_line(args, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(args)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_good_overrides_pass():
+    cli.validate(cli.expand_all(["-m", "detector=all", "selector.nms.params.n=500", "seed=0,1",
+                                 "transform.rotation.strengths=[0,90]", "detector=glob(s*)", "+foo=1"]))
+
+
+def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    args = ["detector=[sift]", "resume=true"]
+    run = tmp_path / "outputs" / "2026-01-01" / "10-00-00"
+    run.mkdir(parents=True)
+    (run / cli.SWEEP_RECORD).write_text(json.dumps({"key": cli.sweep_key(["detector=[sift]"])}))
+    assert cli.resume_args(args, multirun=False) == [f"hydra.run.dir={run}"]
+    assert cli.resume_args(["detector=[orb]", "resume=true"], multirun=False) == []
