@@ -21,10 +21,11 @@ Sampling replicates ``torch.nn.functional.grid_sample`` (``align_corners=False``
 coordinate normalisation by ``W - 1`` / ``H - 1`` (``InterpolateSparse2d.normgrid``), so the output equals the
 reference model's (tested against a stored reference output and, where torch is installed, live).
 
-Keypoints have no orientation (angle -1). Their size is :data:`KEYPOINT_SIZE` = 8 px, the side of XFeat's
-keypoint cell (the keypoint head classifies one position per 8x8 cell); with the survey's circle IoU > 0.5
-that accepts centres up to 2.1 px apart, a quarter of a cell, and stays below NMS spacing effects of a
-16 px circle (two circles of 16 px match up to 4.2 px apart, more than the 3 px minimum keypoint distance).
+Keypoints have no orientation (angle -1) and response = score. Their size is :data:`KEYPOINT_SIZE` = 8 px,
+the side of XFeat's keypoint cell (the keypoint head picks one position per 8x8 cell). Under the survey's
+circle IoU > 0.5, two 8 px keypoints match when their centres are less than 2.1 px apart, about a quarter
+cell; 16 px would accept 4.2 px, more than the 3 px that the 5x5 NMS leaves between XFeat keypoints, and so
+would inflate the survey's ambiguity metric.
 """
 from __future__ import annotations
 
@@ -141,13 +142,14 @@ def sample_map(fmap: np.ndarray, xy: np.ndarray, image_size: tuple[int, int], mo
     unnormalised by ``grid_sample(align_corners=False)``; taps outside the map count as zero. ``mode`` is
     ``"nearest"``, ``"bilinear"`` or ``"bicubic"``. Returns (N, C) float32.
     """
-    fmap = np.asarray(fmap, dtype=np.float32)
+    channels_last = np.ascontiguousarray(np.moveaxis(np.asarray(fmap, dtype=np.float32), 0, -1))
     xy = np.asarray(xy, dtype=np.float32).reshape(-1, 2)
-    _, map_h, map_w = fmap.shape
+    map_h, map_w, _ = channels_last.shape
     u = _to_map_coordinate(xy[:, 0], image_size[0], map_w)
     v = _to_map_coordinate(xy[:, 1], image_size[1], map_h)
     if mode == "nearest":
-        return _gather(fmap, np.rint(u)[:, None, None], np.rint(v)[:, None, None])[:, :, 0, 0].T.copy()
+        values, inside = _gather(channels_last, np.rint(u)[:, None, None], np.rint(v)[:, None, None])
+        return values[:, 0, 0] * inside[:, 0, 0, None]
     if mode == "bilinear":
         offsets, weight = np.arange(2), _linear_weights
     elif mode == "bicubic":
@@ -155,9 +157,9 @@ def sample_map(fmap: np.ndarray, xy: np.ndarray, image_size: tuple[int, int], mo
     else:
         raise ValueError(f"unknown sampling mode {mode!r}")
     u0, v0 = np.floor(u), np.floor(v)
-    taps = _gather(fmap, (u0[:, None] + offsets)[:, None, :], (v0[:, None] + offsets)[:, :, None])
-    wx, wy = weight(u - u0), weight(v - v0)  # (N, taps) each
-    return np.einsum("cnyx,nx,ny->nc", taps, wx, wy, dtype=np.float32, optimize=True)
+    values, inside = _gather(channels_last, (u0[:, None] + offsets)[:, None, :], (v0[:, None] + offsets)[:, :, None])
+    weights = weight(v - v0)[:, :, None] * weight(u - u0)[:, None, :] * inside  # (N, rows, cols)
+    return np.einsum("nyx,nyxc->nc", weights, values, optimize=True).astype(np.float32)
 
 
 def _to_map_coordinate(coord: np.ndarray, image_extent: int, map_extent: int) -> np.ndarray:
@@ -166,13 +168,12 @@ def _to_map_coordinate(coord: np.ndarray, image_extent: int, map_extent: int) ->
     return (grid + np.float32(1.0)) * np.float32(map_extent / 2.0) - np.float32(0.5)
 
 
-def _gather(fmap: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``fmap[:, rows, cols]`` with broadcasting index arrays; taps outside the map are zero."""
-    _, map_h, map_w = fmap.shape
+def _gather(channels_last: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``channels_last[rows, cols]`` (broadcast index arrays) and whether each tap lies inside the map."""
+    map_h, map_w, _ = channels_last.shape
     cols, rows = np.broadcast_arrays(cols.astype(np.int64), rows.astype(np.int64))
     inside = (cols >= 0) & (cols < map_w) & (rows >= 0) & (rows < map_h)
-    values = fmap[:, np.clip(rows, 0, map_h - 1), np.clip(cols, 0, map_w - 1)]
-    return values * inside
+    return channels_last[np.clip(rows, 0, map_h - 1), np.clip(cols, 0, map_w - 1)], inside.astype(np.float32)
 
 
 def _linear_weights(t: np.ndarray) -> np.ndarray:
@@ -224,17 +225,22 @@ def detect_arrays(image: np.ndarray, mask: np.ndarray | None = None, top_k: int 
     descriptors = None
     if with_descriptors:
         descriptors = normalise_rows(sample_map(normalise_rows(feats, axis=0), positions, size, "bicubic"))
-    xy = positions.astype(np.float32) * np.array([scale_x, scale_y], dtype=np.float32)
-    return xy, scores.astype(np.float32), descriptors
+    xy = np.stack([_to_image(positions[:, 0], scale_x), _to_image(positions[:, 1], scale_y)], axis=1)
+    return xy.reshape(-1, 2), scores.astype(np.float32), descriptors
+
+
+def _to_image(heatmap_index: np.ndarray, scale: float) -> np.ndarray:
+    """Heatmap pixel index -> image coordinate (float32, as XFeat's ``mkpts * [rw, rh]``)."""
+    return heatmap_index.astype(np.float32) * np.float32(scale)
 
 
 def _mask_on_heatmap(mask, image_shape, heatmap_shape, scale_x: float, scale_y: float) -> np.ndarray:
-    """The detection mask sampled where each heatmap pixel's keypoint lands in the image (1 allowed, 0 not)."""
+    """The detection mask at the pixel (``floor(x + 0.5)``) where each heatmap pixel's keypoint would land."""
     mask = np.asarray(mask)
     if mask.shape[:2] != tuple(image_shape) or mask.ndim != 2:
         raise BadInput(f"mask shape {mask.shape} does not match image shape {tuple(image_shape)}")
-    rows = np.clip(np.floor(np.arange(heatmap_shape[0]) * np.float32(scale_y) + 0.5), 0, mask.shape[0] - 1)
-    cols = np.clip(np.floor(np.arange(heatmap_shape[1]) * np.float32(scale_x) + 0.5), 0, mask.shape[1] - 1)
+    rows = np.clip(np.floor(_to_image(np.arange(heatmap_shape[0]), scale_y) + 0.5), 0, mask.shape[0] - 1)
+    cols = np.clip(np.floor(_to_image(np.arange(heatmap_shape[1]), scale_x) + 0.5), 0, mask.shape[1] - 1)
     return (mask[rows.astype(np.intp)[:, None], cols.astype(np.intp)[None, :]] != 0).astype(np.float32)
 
 

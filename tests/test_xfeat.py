@@ -67,14 +67,27 @@ def test_matches_live_torch_reference(texture, shape, top_k):
     assert_same_features(detect_arrays(image, top_k=top_k), theirs)
 
 
-def test_mask_is_respected(texture):
-    mask = np.zeros(texture.shape, np.uint8)
+def rectangle_mask(shape):
+    mask = np.zeros(shape, np.uint8)
     mask[40:200, 60:170] = 255
-    xy, _, _ = detect_arrays(texture, mask)
+    return mask
+
+
+def disc_mask(shape):
+    mask = np.zeros(shape, np.uint8)
+    cv2.circle(mask, (shape[1] // 2, shape[0] // 2), min(shape) // 3, 1, -1)
+    return mask
+
+
+@pytest.mark.parametrize("shape, make_mask", [((240, 320), rectangle_mask), ((251, 333), disc_mask)])
+def test_mask_is_respected(texture, shape, make_mask):
+    image = cv2.resize(texture, (shape[1], shape[0]))
+    mask = make_mask(shape)
+    xy, _, _ = detect_arrays(image, mask)
     assert len(xy) > 50
     cols, rows = np.floor(xy + 0.5).astype(int).T
     assert np.all(mask[rows, cols] > 0)
-    unmasked, _, _ = detect_arrays(texture)
+    unmasked, _, _ = detect_arrays(image)
     assert len(unmasked) > len(xy)
 
 
@@ -151,3 +164,12 @@ def test_deterministic(texture):
     second = detect_arrays(texture)
     for a, b in zip(first, second):
         np.testing.assert_array_equal(a, b)
+
+
+def test_blank_image_and_no_keypoints_give_empty_arrays():
+    detector = XFeat_create()
+    blank = np.full((64, 96), 128, np.uint8)
+    keypoints, desc = detector.detectAndCompute(blank, None)
+    assert keypoints == [] and desc.shape == (0, DESCRIPTOR_SIZE)
+    kept, desc = detector.compute(blank, [])
+    assert kept == [] and desc.shape == (0, DESCRIPTOR_SIZE)
