@@ -8,9 +8,10 @@ from pathlib import Path
 import hydra
 import pandas as pd
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from gtsweep.cli import SWEEP_RECORD, fail
+from gtsweep.cache import library_versions
 from gtsweep.errors import GtsweepError
 from gtsweep.paths import CONF_DIR
 from gtsweep.results import summary_table
@@ -32,11 +33,24 @@ def _app(cfg: DictConfig) -> None:
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
     (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": _sweep_key, "argv": sys.argv[1:]}))
+    tracker = None
     try:
-        outcome = run_sweep(cfg, output_dir)
+        hooks, on_start = (), None
+        if cfg.mlflow.enabled:
+            from gtsweep.tracking import SweepTracker
+
+            tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True),
+                                   run_name=f"{output_dir.parent.name}/{output_dir.name}")
+            hooks = (tracker.log_cell,)
+            on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
+        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start)
+        if tracker is not None:
+            tracker.end(outcome)
     except GtsweepError as e:
         fail(e)
     print(format_outcome(outcome))
+    if tracker is not None:
+        print(f"MLflow: parent run {tracker.parent_id} in {tracker.uri} (make ui, then open http://127.0.0.1:5000)")
     if outcome.failed:
         print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)
         sys.exit(1)

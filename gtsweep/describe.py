@@ -6,7 +6,8 @@ zero:
 
 - the AKAZE descriptor needs AKAZE keypoints (it reads their nonlinear scale level from ``class_id``);
 - DAISY needs keypoints with an orientation;
-- the ORB descriptor needs keypoints on its own pyramid scales, which excludes SIFT (and LIFT, here XFeat).
+- the ORB descriptor needs keypoints on its own pyramid scales, which excludes SIFT (the survey's LIFT too; our
+  learned stand-in XFeat gives fixed-size keypoints at octave 0, which ORB describes).
 
 Foreign keypoints are normalised before description: their ``octave`` is reset to 0 (SIFT packs a large integer
 there and MSD uses 0–14; OpenCV's ORB/SIFT would read it as a pyramid level and try to allocate ~68 GB), and
@@ -61,7 +62,7 @@ DESCRIPTORS: dict[str, DescriptorSpec] = {
     s.name: s
     for s in [
         DescriptorSpec("orb", "ORB", cv2.ORB_create, HAMMING,
-                       excluded_detectors={"sift": _ORB_SCALES, "xfeat": _ORB_SCALES}),
+                       excluded_detectors={"sift": _ORB_SCALES}),
         DescriptorSpec("brief", "BRIEF", _x.BriefDescriptorExtractor_create, HAMMING),
         DescriptorSpec("latch", "LATCH", _x.LATCH_create, HAMMING),
         DescriptorSpec("surf", "SURF", _surf, L2),

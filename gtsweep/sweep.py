@@ -17,7 +17,8 @@ from gtsweep.grid import Cell, Grid, build_grid, plain
 from gtsweep.results import ResultStore, summarize
 from gtsweep.runner import RunStats, load_shards, plan, run
 
-#: Called as ``hook(cell, summary, rows)`` for every cell that finishes in this run (rows None for NA cells).
+#: Called as ``hook(cell, summary, rows)`` for every cell as it finishes, and for cells kept from an earlier run
+#: (rows None for those and for NA cells).
 CellHook = Callable[[Cell, dict, "pd.DataFrame | None"], None]
 
 
@@ -71,6 +72,8 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         done = store.complete(cell.key, hashes[cell.key])
         if done is not None:
             summaries[cell.key], resumed = done, resumed + 1
+            for hook in hooks:  # hooks skip what they already have (e.g. cells logged before a kill)
+                hook(cell, done, None)
         elif cell.na_reason is not None:
             finish(cell, {"na": cell.na_reason})
         else:
