@@ -14,6 +14,7 @@ from gtsweep.cli import SWEEP_RECORD, fail
 from gtsweep.cache import library_versions
 from gtsweep.errors import GtsweepError
 from gtsweep.paths import CONF_DIR
+from gtsweep.report import Table, write_report
 from gtsweep.results import summary_table
 from gtsweep.sweep import SweepOutcome, run_sweep
 
@@ -44,11 +45,13 @@ def _app(cfg: DictConfig) -> None:
             hooks = (tracker.log_cell,)
             on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
         outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start)
+        tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
         if tracker is not None:
-            tracker.end(outcome)
+            tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
         fail(e)
-    print(format_outcome(outcome))
+    print(format_outcome(outcome, tables))
+    print(f"report: {len(files)} tables and plots in {output_dir / 'report'}")
     if tracker is not None:
         print(f"MLflow: parent run {tracker.parent_id} in {tracker.uri} (make ui, then open http://127.0.0.1:5000)")
     if outcome.failed:
@@ -71,7 +74,8 @@ def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
     return tables
 
 
-def format_outcome(outcome: SweepOutcome) -> str:
+def format_outcome(outcome: SweepOutcome, tables: list[Table] = ()) -> str:
+    """Totals, then the survey's tables that the sweep fills (else the headline metric per transform)."""
     statuses = pd.Series([s["status"] for s in outcome.summaries])
     lines = [
         f"gtsweep: {len(outcome.summaries)} cells ({(statuses == 'ok').sum()} evaluated, "
@@ -81,6 +85,11 @@ def format_outcome(outcome: SweepOutcome) -> str:
         f"(= detector calls)",
         f"results: {outcome.table}",
     ]
-    for title, pivot in headline_tables(outcome).items():
-        lines += ["", title, pivot.to_string()]
+    if tables:
+        for table in tables:
+            lines += ["", table.markdown()]
+        lines += ["", "cells read 'ours (paper)'; NA = the pairing cannot be evaluated"]
+    else:
+        for title, pivot in headline_tables(outcome).items():
+            lines += ["", title, pivot.to_string()]
     return "\n".join(lines)

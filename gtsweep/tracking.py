@@ -96,6 +96,7 @@ class SweepTracker:
         self.grid = grid
 
     def _logged_children(self, experiment_id: str) -> set[tuple[str, str]]:
+        """(cell, hash) of the child runs already under the parent (a resumed sweep logs no duplicates)."""
         runs = self.client.search_runs([experiment_id], f"tags.mlflow.parentRunId = '{self.parent_id}'",
                                        max_results=50000)
         return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs}
@@ -119,6 +120,9 @@ class SweepTracker:
         now = int(time.time() * 1000)
         metrics = [Metric(k, float(v), now, 0) for k, v in (summary.get("metrics") or {}).items() if _finite(v)]
         metrics += self._step_metrics(summary, now)
+        for step_key in ("strength", "reference_count"):
+            if summary.get(f"by_{step_key}"):
+                tags[f"gtsweep.step_scale.{step_key}"] = str(step_scale([float(v) for v in summary[f"by_{step_key}"]]))
         self.client.log_batch(run.info.run_id, metrics=metrics,
                               params=[Param(k[:250], v[:6000]) for k, v in params.items()],
                               tags=[RunTag(k, v) for k, v in tags.items() if k != "mlflow.parentRunId"])
@@ -127,6 +131,7 @@ class SweepTracker:
 
     @staticmethod
     def _step_metrics(summary: Mapping, now: int) -> list:
+        """``<metric>_vs_strength`` / ``_vs_reference_count`` series; steps are strength x :func:`step_scale`."""
         from mlflow.entities import Metric
 
         metrics = []
@@ -156,3 +161,37 @@ class SweepTracker:
 
 def _finite(value) -> bool:
     return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[dict]:
+    """Cell summaries rebuilt from a sweep's MLflow child runs (the report's other source)."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri(None) if uri is None else uri)
+    try:
+        parent = client.get_run(parent_run_id)
+    except Exception as e:
+        raise BadInput(f"no MLflow run '{parent_run_id}' in '{client.tracking_uri}': {str(e).splitlines()[0]}") \
+            from None
+    runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",
+                              max_results=50000)
+    summaries = []
+    for run in runs:
+        params, tags = run.data.params, run.data.tags
+        methods = {k: params.get(k) for k in ("detector", "selector", "descriptor", "transform")}
+        summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
+                   "reason": tags.get(REASON_TAG),
+                   "metrics": {k: v for k, v in run.data.metrics.items() if "_vs_" not in k}}
+        for step_key in ("strength", "reference_count"):
+            series = [k for k in run.data.metrics if k.endswith(f"_vs_{step_key}")]
+            steps: dict[str, dict] = {}
+            for name in series:
+                history = client.get_metric_history(run.info.run_id, name)
+                scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
+                scale = float(tags.get(f"gtsweep.step_scale.{step_key}", scale))
+                for m in history:
+                    steps.setdefault(repr(m.step / scale), {})[name[: -len(f"_vs_{step_key}")]] = m.value
+            if steps:
+                summary[f"by_{step_key}"] = steps
+        summaries.append(summary)
+    return sorted(summaries, key=lambda s: s["key"] or "")
