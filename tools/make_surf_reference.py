@@ -37,8 +37,8 @@ def foreign_keypoints(shape, seed=7, count=120) -> np.ndarray:
     """Keypoints another detector could give: random positions (some outside), sizes 0.5-120, angles, octaves."""
     rng = np.random.default_rng(seed)
     rows, cols = shape
-    x = rng.uniform(-10, cols + 10, count)
-    y = rng.uniform(-10, rows + 10, count)
+    x = rng.uniform(-60, cols + 60, count)
+    y = rng.uniform(-60, rows + 60, count)
     size = rng.choice([0.5, 3.0, 7.0, 12.5, 20.0, 31.0, 45.0, 80.0, 120.0], count)
     angle = rng.uniform(0, 360, count)
     octave = rng.integers(-1, 8, count)

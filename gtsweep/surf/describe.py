@@ -37,10 +37,8 @@ UPRIGHT_ANGLE = 270.0
 ORIENTATION_BATCH = 4096
 #: Channels per cv2.resize call when enlarging windows (OpenCV's Python binding takes up to 128 here).
 UPSCALE_CHANNELS = 128
-#: cv2.remap needs output sides below 32767 (SHRT_MAX).
-REMAP_MAX_ROWS = 32000
-#: Window pixels per batch when sampling descriptor windows.
-WINDOW_BATCH_PIXELS = 1 << 21
+#: Window pixels per batch when sampling descriptor windows (small enough to stay in cache).
+WINDOW_BATCH_PIXELS = 1 << 16
 
 
 def keypoint_scale(size: np.ndarray) -> np.ndarray:
@@ -73,10 +71,33 @@ def descriptor_weights() -> np.ndarray:
     return taps[:, None] * taps[None, :]
 
 
-def fast_atan2_degrees(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """OpenCV's ``fastAtan2`` (a 7th-order polynomial, ~0.3 degree accuracy) in float32, in [0, 360)."""
+#: Coefficients of OpenCV's ``atan_f32`` polynomial, in degrees (float32 products as in mathfuncs_core).
+ATAN_COEFFS = tuple(F32(c) * F32(180 / np.pi)
+                    for c in (0.9997878412794807, -0.3258083974640975, 0.1555786518463281, -0.04432655554792128))
+
+
+def sample_angles_degrees(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``cv2.phase`` in degrees: what surf.cpp uses for the angles of the orientation samples."""
     y, x = np.asarray(y, dtype=F32), np.asarray(x, dtype=F32)
+    if x.size == 0:
+        return np.zeros(x.shape, F32)
     return cv2.phase(x.reshape(-1, 1), y.reshape(-1, 1), angleInDegrees=True).reshape(x.shape)
+
+
+def fast_atan2_degrees(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """OpenCV's scalar ``fastAtan2(y, x)`` (a 7th-order polynomial, ~0.3 degree accuracy) in float32, [0, 360)."""
+    y, x = np.asarray(y, dtype=F32), np.asarray(x, dtype=F32)
+    p1, p3, p5, p7 = ATAN_COEFFS
+    ax, ay = np.abs(x), np.abs(y)
+    x_major = ax >= ay
+    eps = F32(np.finfo(np.float64).eps)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.where(x_major, ay, ax) / (np.where(x_major, ax, ay) + eps)
+    c2 = c * c
+    poly = (((p7 * c2 + p5) * c2 + p3) * c2 + p1) * c
+    a = np.where(x_major, poly, F32(90) - poly)
+    a = np.where(x < 0, F32(180) - a, a)
+    return np.where(y < 0, F32(360) - a, a)
 
 
 def _window_sums(values: np.ndarray, angle: np.ndarray, included: np.ndarray) -> np.ndarray:
@@ -107,17 +128,20 @@ def _orientation_batch(integral, x, y, s, offsets, weights):
     rows, cols = integral.shape
     inside = (py >= 0) & (py < rows - wavelet[:, None]) & (px >= 0) & (px < cols - wavelet[:, None])
     safe_x, safe_y = np.where(inside, px, 0), np.where(inside, py, 0)
-    resp_x = box_response(integral, corners_x[:, None], weights_x[:, None], safe_y, safe_x) * weights
-    resp_y = box_response(integral, corners_y[:, None], weights_y[:, None], safe_y, safe_x) * weights
-    resp_x, resp_y = np.where(inside, resp_x, F32(0)), np.where(inside, resp_y, F32(0))
-    sample_angle = np.rint(fast_atan2_degrees(resp_y, resp_x)).astype(np.int64) % 360
-    sum_x, sum_y = (_window_sums(resp, sample_angle, inside) for resp in (resp_x, resp_y))
+    with np.errstate(invalid="ignore"):  # wavelet side 0 (size < 1.9): 0 * inf; OpenCV's NaNs end as angle 0
+        resp_x = box_response(integral, corners_x[:, None], weights_x[:, None], safe_y, safe_x) * weights
+        resp_y = box_response(integral, corners_y[:, None], weights_y[:, None], safe_y, safe_x) * weights
+    usable = inside & (wavelet > 0)[:, None]
+    resp_x, resp_y = np.where(usable, resp_x, F32(0)), np.where(usable, resp_y, F32(0))
+    rounded = np.rint(sample_angles_degrees(resp_y, resp_x)).astype(np.int64)
+    sum_x, sum_y = (_window_sums(resp, rounded % 360, inside) for resp in (resp_x, resp_y))
     strength = sum_x * sum_x + sum_y * sum_y
     best = np.argmax(strength, axis=1)
-    pick = (np.arange(len(best)), best)
-    chosen = strength[pick] > 0
-    best_x = np.where(chosen, sum_x[pick], 0).astype(F32)
-    best_y = np.where(chosen, sum_y[pick], 0).astype(F32)
+    chosen = strength[np.arange(len(best)), best] > 0
+    # The winning window's sums again, now in float32 and in sample order as OpenCV adds them.
+    distance = np.abs(rounded - (best * ORI_SEARCH_STEP)[:, None])
+    in_best = inside & ((distance < ORI_WINDOW // 2) | (distance > 360 - ORI_WINDOW // 2)) & chosen[:, None]
+    best_x, best_y = (np.cumsum(np.where(in_best, resp, F32(0)), axis=1, dtype=F32)[:, -1] for resp in (resp_x, resp_y))
     return fast_atan2_degrees(-best_y, best_x), inside.any(axis=1)
 
 
@@ -139,11 +163,13 @@ def orientations(integral: np.ndarray, x: np.ndarray, y: np.ndarray, size: np.nd
     return angles, valid
 
 
-def _rotated_sample_maps(x, y, angle, win):
-    """Sample positions ``(n, win, win)`` of OpenCV's rotated descriptor windows, as float32 maps.
+def _rotated_windows(gray: np.ndarray, pixels: np.ndarray, x, y, angle, win: int) -> np.ndarray:
+    """OpenCV's rotated descriptor windows ``(n, win, win)`` uint8, sampled bilinearly as surf.cpp does.
 
-    Row ``i``, column ``j`` of a window samples ``start + i (sin, cos) + j (cos, -sin)`` with
-    ``sin = -sin(angle)``; row starts advance in float32 steps as in surf.cpp.
+    Row ``i``, column ``j`` samples ``start + i (sin, cos) + j (cos, -sin)`` with ``sin = -sin(angle)``: row
+    starts advance in float32 steps, columns in float64, as in surf.cpp. The value is
+    ``cvRound(p00 (1-a)(1-b) + p01 a (1-b) + p10 (1-a) b + p11 a b)`` in float32; a sample whose 2x2
+    neighbourhood leaves the image takes the nearest (clamped) pixel. ``pixels`` is ``gray`` as flat float32.
     """
     theta = (angle.astype(F32) * F32(np.pi / 180)).astype(np.float64)
     sin_dir, cos_dir = (-np.sin(theta)).astype(F32), np.cos(theta).astype(F32)
@@ -152,44 +178,53 @@ def _rotated_sample_maps(x, y, angle, win):
     start_y = y - offset * sin_dir + offset * cos_dir
     row_x = np.cumsum(np.concatenate([start_x[:, None], np.repeat(sin_dir[:, None], win - 1, 1)], 1), 1, F32)
     row_y = np.cumsum(np.concatenate([start_y[:, None], np.repeat(cos_dir[:, None], win - 1, 1)], 1), 1, F32)
-    steps = np.arange(win, dtype=F32)
-    map_x = row_x[:, :, None] + steps * cos_dir[:, None, None]
-    map_y = row_y[:, :, None] - steps * sin_dir[:, None, None]
-    return map_x, map_y
-
-
-def _upright_sample_maps(x, y, win):
-    """Integer sample positions ``(n, win, win)`` of OpenCV's upright windows (transposed, y decreasing)."""
-    offset = F32(-(win - 1) / 2)
-    steps = np.arange(win, dtype=F32)
-    start_x = np.rint(x + offset)
-    start_y = np.rint(y - offset)
-    map_x = np.broadcast_to(start_x[:, None, None] + steps[None, :, None], (len(x), win, win))
-    map_y = np.broadcast_to(start_y[:, None, None] - steps[None, None, :], (len(x), win, win))
-    return map_x, map_y
-
-
-def _sample(gray: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``gray`` at float positions ``(n, win, win)`` -> uint8 windows.
-
-    As in surf.cpp, a position whose 2x2 neighbourhood leaves the image takes the nearest pixel (clamped).
-    Interpolation is ``cv2.remap``'s (positions quantised to 1/32 pixel) instead of surf.cpp's float weights:
-    sample values may differ by a grey level or so, which the INTER_AREA averaging that follows shrinks further.
-    """
-    n, win, _ = map_x.shape
+    steps = np.arange(win, dtype=np.float64)
+    px = row_x.astype(np.float64)[:, :, None] + (steps * cos_dir.astype(np.float64)[:, None])[:, None, :]
+    py = row_y.astype(np.float64)[:, :, None] - (steps * sin_dir.astype(np.float64)[:, None])[:, None, :]
+    ix, iy = np.floor(px), np.floor(py)
+    a, b = (px - ix).astype(F32), (py - iy).astype(F32)
     rows, cols = gray.shape
-    inside = (map_x >= 0) & (map_x < cols - 1) & (map_y >= 0) & (map_y < rows - 1)
-    if not inside.all():
-        map_x = np.where(inside, map_x, np.clip(np.rint(map_x), 0, cols - 1)).astype(F32)
-        map_y = np.where(inside, map_y, np.clip(np.rint(map_y), 0, rows - 1)).astype(F32)
-    out = np.empty((n, win, win), np.uint8)
-    per_call = max(1, REMAP_MAX_ROWS // win)
-    for start in range(0, n, per_call):
-        part = slice(start, start + per_call)
-        out[part] = cv2.remap(gray, np.ascontiguousarray(map_x[part]).reshape(-1, win),
-                              np.ascontiguousarray(map_y[part]).reshape(-1, win), cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_REPLICATE).reshape(-1, win, win)
-    return out
+    all_inside = ix.min() >= 0 and ix.max() < cols - 1 and iy.min() >= 0 and iy.max() < rows - 1
+    if not all_inside:
+        inside = (ix >= 0) & (ix < cols - 1) & (iy >= 0) & (iy < rows - 1)
+        ix[~inside] = 0
+        iy[~inside] = 0
+    iy *= cols  # in place, to keep memory traffic down: iy becomes the flat index of the top-left pixel
+    iy += ix
+    index = iy.astype(np.intp)
+    one = F32(1)
+    not_a, not_b = one - a, one - b
+    value = pixels[index]
+    value *= not_a
+    value *= not_b
+    term = pixels[index + 1]
+    term *= a
+    term *= not_b
+    value += term
+    np.take(pixels, index + cols, out=term)
+    term *= not_a
+    term *= b
+    value += term
+    index += cols + 1
+    np.take(pixels, index, out=term)
+    term *= a
+    term *= b
+    value += term
+    window = np.rint(value, out=value).astype(np.uint8)
+    if not all_inside:
+        nearest = gray[np.clip(np.rint(py), 0, rows - 1).astype(np.intp),
+                       np.clip(np.rint(px), 0, cols - 1).astype(np.intp)]
+        window = np.where(inside, window, nearest)
+    return window
+
+
+def _upright_windows(gray: np.ndarray, x, y, win: int) -> np.ndarray:
+    """OpenCV's upright windows ``(n, win, win)``: pixel ``(start_x + i, start_y - j)``, clamped (transposed)."""
+    offset = F32(-(win - 1) / 2)
+    steps = np.arange(win)
+    cols = np.clip(np.rint(x + offset).astype(np.intp)[:, None, None] + steps[None, :, None], 0, gray.shape[1] - 1)
+    rows = np.clip(np.rint(y - offset).astype(np.intp)[:, None, None] - steps[None, None, :], 0, gray.shape[0] - 1)
+    return gray[rows, cols]
 
 
 def _area_resize(windows: np.ndarray) -> np.ndarray:
@@ -220,6 +255,7 @@ def patches(gray, x, y, angle, size, upright):
     21x21 with INTER_AREA, so that each patch pixel spans s.
     """
     win_sizes = window_sizes(size)
+    pixels = gray.astype(F32).ravel()
     out = np.zeros((len(x), PATCH_SIZE + 1, PATCH_SIZE + 1), np.uint8)
     for win in np.unique(win_sizes):
         members = np.flatnonzero(win_sizes == win)
@@ -227,10 +263,9 @@ def patches(gray, x, y, angle, size, upright):
         for start in range(0, len(members), batch):
             idx = members[start:start + batch]
             if upright:
-                maps = _upright_sample_maps(x[idx], y[idx], int(win))
+                windows = _upright_windows(gray, x[idx], y[idx], int(win))
             else:
-                maps = _rotated_sample_maps(x[idx], y[idx], angle[idx], int(win))
-            windows = _sample(gray, *maps)
+                windows = _rotated_windows(gray, pixels, x[idx], y[idx], angle[idx], int(win))
             out[idx] = _area_resize(windows)
     return out
 

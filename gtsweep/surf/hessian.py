@@ -54,24 +54,45 @@ def scale_boxes(boxes, base_size, new_size):
     return corners, weights
 
 
+def _weighted_total(box_sums, weights) -> np.ndarray:
+    """OpenCV's ``calcHaarPattern`` arithmetic: each int box sum times its float32 weight, added in float64."""
+    total = None
+    for k, box_sum in enumerate(box_sums):
+        term = box_sum.astype(F32) * weights[..., k]
+        total = term.astype(np.float64) if total is None else total + term
+    return total.astype(F32)
+
+
 def box_response(integral: np.ndarray, corners: np.ndarray, weights: np.ndarray, ys, xs) -> np.ndarray:
     """Weighted sum of box sums with the pattern's top-left corner at ``(ys, xs)`` (surf.cpp ``calcHaarPattern``).
 
-    ``ys`` and ``xs`` broadcast against each other (e.g. a column and a row for a grid). ``corners``/``weights``
-    come from :func:`scale_boxes`, either one pattern for all positions or one pattern per position (leading axes
-    broadcasting with ``ys``). Each box sum is an int, multiplied by its float32 weight; the terms are added in
-    float64 and the total rounded to float32, as OpenCV does.
+    ``ys`` and ``xs`` broadcast against each other. ``corners``/``weights`` come from :func:`scale_boxes`, either
+    one pattern for all positions or one pattern per position (leading axes broadcasting with ``ys``). Each box
+    sum is an int, multiplied by its float32 weight; the terms are added in float64 and the total rounded to
+    float32, as OpenCV does.
     """
     flat = integral.ravel()
     width = integral.shape[1]
     origin = np.asarray(ys, dtype=np.int64) * width + np.asarray(xs, dtype=np.int64)
-    total = np.zeros(np.broadcast(origin, weights[..., 0]).shape, dtype=np.float64)
-    for k in range(corners.shape[-2]):
-        x1, y1, x2, y2 = (corners[..., k, c] for c in range(4))
-        box_sum = (flat[origin + (y1 * width + x1)] + flat[origin + (y2 * width + x2)]
+
+    def box_sums():
+        for k in range(corners.shape[-2]):
+            x1, y1, x2, y2 = (corners[..., k, c] for c in range(4))
+            yield (flat[origin + (y1 * width + x1)] + flat[origin + (y2 * width + x2)]
                    - flat[origin + (y2 * width + x1)] - flat[origin + (y1 * width + x2)])
-        total += box_sum.astype(F32) * weights[..., k]
-    return total.astype(F32)
+    return _weighted_total(box_sums(), weights)
+
+
+def grid_box_response(integral: np.ndarray, corners: np.ndarray, weights: np.ndarray, n_rows: int, n_cols: int,
+                      step: int) -> np.ndarray:
+    """:func:`box_response` of one pattern on the grid of corners ``(step * i, step * j)``, by strided slices."""
+    def corner(x, y):
+        return integral[y:y + step * n_rows:step, x:x + step * n_cols:step]
+
+    def box_sums():
+        for x1, y1, x2, y2 in corners.tolist():
+            yield corner(x1, y1) + corner(x2, y2) - corner(x1, y2) - corner(x2, y1)
+    return _weighted_total(box_sums(), weights)
 
 
 def layer_sizes(n_octaves: int, n_octave_layers: int):
@@ -99,9 +120,7 @@ def layer_det_and_trace(integral: np.ndarray, size: int, step: int):
         return det, trace
     n_rows, n_cols = 1 + (height - size) // step, 1 + (width - size) // step
     margin = (size // 2) // step
-    ys = (np.arange(n_rows) * step)[:, None]
-    xs = (np.arange(n_cols) * step)[None, :]
-    dxx, dyy, dxy = (box_response(integral, *scale_boxes(boxes, HAAR_SIZE0, size), ys, xs)
+    dxx, dyy, dxy = (grid_box_response(integral, *scale_boxes(boxes, HAAR_SIZE0, size), n_rows, n_cols, step)
                      for boxes in (DXX_BOXES, DYY_BOXES, DXY_BOXES))
     det[margin:margin + n_rows, margin:margin + n_cols] = dxx * dyy - DXY_WEIGHT * dxy * dxy
     trace[margin:margin + n_rows, margin:margin + n_cols] = dxx + dyy
