@@ -38,7 +38,7 @@ ORIENTATION_BATCH = 4096
 #: Channels per cv2.resize call when enlarging windows (OpenCV's Python binding takes up to 128 here).
 UPSCALE_CHANNELS = 128
 #: Window pixels per batch when sampling descriptor windows (small enough to stay in cache).
-WINDOW_BATCH_PIXELS = 1 << 16
+WINDOW_BATCH_PIXELS = 1 << 15
 
 
 def keypoint_scale(size: np.ndarray) -> np.ndarray:
@@ -182,9 +182,14 @@ def _rotated_windows(gray: np.ndarray, pixels: np.ndarray, x, y, angle, win: int
     px = row_x.astype(np.float64)[:, :, None] + (steps * cos_dir.astype(np.float64)[:, None])[:, None, :]
     py = row_y.astype(np.float64)[:, :, None] - (steps * sin_dir.astype(np.float64)[:, None])[:, None, :]
     ix, iy = np.floor(px), np.floor(py)
-    a, b = (px - ix).astype(F32), (py - iy).astype(F32)
+    a = np.subtract(px, ix, out=np.empty(px.shape, F32), casting="same_kind")
+    b = np.subtract(py, iy, out=np.empty(py.shape, F32), casting="same_kind")
     rows, cols = gray.shape
-    all_inside = ix.min() >= 0 and ix.max() < cols - 1 and iy.min() >= 0 and iy.max() < rows - 1
+    # Positions are monotonic along rows and columns, so the window's corners bound them all.
+    ends = [0, win - 1]
+    corners_x, corners_y = ix[:, ends][:, :, ends], iy[:, ends][:, :, ends]
+    all_inside = (corners_x.min() >= 0 and corners_x.max() < cols - 1
+                  and corners_y.min() >= 0 and corners_y.max() < rows - 1)
     if not all_inside:
         inside = (ix >= 0) & (ix < cols - 1) & (iy >= 0) & (iy < rows - 1)
         ix[~inside] = 0
@@ -197,16 +202,15 @@ def _rotated_windows(gray: np.ndarray, pixels: np.ndarray, x, y, angle, win: int
     value = pixels[index]
     value *= not_a
     value *= not_b
-    term = pixels[index + 1]
+    term = pixels[1:][index]  # right neighbour: the same index into shifted views
     term *= a
     term *= not_b
     value += term
-    np.take(pixels, index + cols, out=term)
+    np.take(pixels[cols:], index, out=term)  # below
     term *= not_a
     term *= b
     value += term
-    index += cols + 1
-    np.take(pixels, index, out=term)
+    np.take(pixels[cols + 1:], index, out=term)  # below right
     term *= a
     term *= b
     value += term
