@@ -65,7 +65,8 @@ def reference(name: str, image: np.ndarray) -> dict:
     out[f"{name}_kp_mask"] = keypoint_rows(surf.detect(image, mask_for(image.shape)))
     out[f"{name}_kp_other"] = keypoint_rows(cv2.xfeatures2d.SURF_create(*OTHER_PARAMS).detect(image))
     given = foreign_keypoints(image.shape)
-    kps = [cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r), int(o), int(c)) for x, y, s, a, r, o, c in given]
+    kps = [cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r), int(o), int(c))
+           for x, y, s, a, r, o, c in given]
     kept, desc = surf.compute(image, kps)
     out[f"{name}_foreign_in"] = given
     out[f"{name}_foreign_kp"] = keypoint_rows(kept)
@@ -75,7 +76,8 @@ def reference(name: str, image: np.ndarray) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "tests/data/surf_reference.npz")
+    default_out = Path(__file__).resolve().parents[1] / "tests/data/surf_reference.npz"
+    parser.add_argument("--out", type=Path, default=default_out)
     args = parser.parse_args()
     cv2.setNumThreads(1)
     cv2.xfeatures2d.SURF_create()  # fails fast without a nonfree build

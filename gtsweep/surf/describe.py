@@ -6,7 +6,8 @@ orientation from Haar wavelet responses in a sliding 60-degree window; section 4
 ``opencv_contrib/modules/xfeatures2d/src/surf.cpp`` (``SURFInvoker``; Apache-2.0, original code by Liu Liu,
 revised by Ian Mahon): the same sampling grid, rounding, float32 arithmetic and summation order, and the same
 ``cv2.phase``, ``cv2.getGaussianKernel`` and ``cv2.resize(INTER_AREA)`` calls. Only the loops over keypoints are
-replaced by array operations (keypoints are grouped by window size; loops run over groups, rows or windows).
+replaced by array operations (keypoints are grouped by window size; loops run over groups or batches). On real
+textures this gives OpenCV's angles bit for bit and descriptors equal to within a few float32 ulps.
 """
 from __future__ import annotations
 
@@ -141,7 +142,8 @@ def _orientation_batch(integral, x, y, s, offsets, weights):
     # The winning window's sums again, now in float32 and in sample order as OpenCV adds them.
     distance = np.abs(rounded - (best * ORI_SEARCH_STEP)[:, None])
     in_best = inside & ((distance < ORI_WINDOW // 2) | (distance > 360 - ORI_WINDOW // 2)) & chosen[:, None]
-    best_x, best_y = (np.cumsum(np.where(in_best, resp, F32(0)), axis=1, dtype=F32)[:, -1] for resp in (resp_x, resp_y))
+    best_x, best_y = (np.cumsum(np.where(in_best, resp, F32(0)), axis=1, dtype=F32)[:, -1]
+                      for resp in (resp_x, resp_y))
     return fast_atan2_degrees(-best_y, best_x), inside.any(axis=1)
 
 
