@@ -144,6 +144,9 @@ def test_detect_compute_shapes_and_edge_cases(reference):
     assert isinstance(keypoints, tuple) and isinstance(keypoints[0], cv2.KeyPoint)
     kept, desc = surf.compute(image, keypoints[:50])
     assert len(kept) == 50 and desc.shape == (50, 64) and desc.dtype == np.float32
+    rows, same = surf.compute_array(image, surf.detect_array(image)[:50])
+    np.testing.assert_array_equal(same, desc)
+    assert rows[:, 0].tolist() == [k.pt[0] for k in kept]
     np.testing.assert_allclose(np.linalg.norm(desc, axis=1), 1, rtol=1e-5)
     both, desc2 = surf.detectAndCompute(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR), None)
     assert len(both) == len(keypoints)
@@ -191,7 +194,7 @@ def test_keypoints_and_descriptors_match_opencv(reference, name, upright):
     image, theirs = reference[f"{name}_image"], reference[f"{name}_kp{tag}"]
     for extended in (False, True):
         surf = NumpySURF(extended=extended, upright=upright)
-        ours, desc = surf._arrays(image, None, None, describe=True)
+        ours, desc = surf.detect_and_compute_array(image)
         index = assert_same_keypoints(ours, theirs)
         expected = reference[f"{name}_desc{128 if extended else 64}{tag}"]
         assert cosines(desc[index[:len(expected)]], expected).min() >= 0.999

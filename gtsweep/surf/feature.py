@@ -146,9 +146,18 @@ class NumpySURF:
         provided = _keypoint_array(keypoints if keypoints is not None else ()) if useProvidedKeypoints else None
         return self._run(image, mask, provided, describe=True)
 
+    # The same on plain arrays: keypoints as (N, 7) float64 rows with the columns of gtsweep.keypoints.
     def detect_array(self, image, mask=None) -> np.ndarray:
-        """Like :meth:`detect` but as an ``(N, 7)`` array (columns of :mod:`gtsweep.keypoints`)."""
+        """Like :meth:`detect`, keypoints as an ``(N, 7)`` array."""
         return self._arrays(image, mask, None, describe=False)[0]
+
+    def compute_array(self, image, keypoints: np.ndarray):
+        """Like :meth:`compute`, for an ``(N, 7)`` keypoint array: ``(kept_rows, descriptors or None)``."""
+        return self._arrays(image, None, np.asarray(keypoints, np.float64).reshape(-1, len(COLUMNS)), True)
+
+    def detect_and_compute_array(self, image, mask=None):
+        """Like :meth:`detectAndCompute`: ``(keypoint rows, descriptors or None)``."""
+        return self._arrays(image, mask, None, describe=True)
 
     def _run(self, image, mask, provided, describe):
         kps, desc = self._arrays(image, mask, provided, describe)
