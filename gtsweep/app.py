@@ -34,6 +34,14 @@ def _app(cfg: DictConfig) -> None:
     output_dir = Path(HydraConfig.get().runtime.output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
     (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": _sweep_key, "argv": sys.argv[1:]}))
+    if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver
+        from gtsweep.optimize import main as optimize_main
+
+        try:
+            optimize_main(cfg, output_dir)
+        except GtsweepError as e:
+            fail(e)
+        return
     tracker = None
     try:
         hooks, on_start = (), None
