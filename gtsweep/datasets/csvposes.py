@@ -1,0 +1,87 @@
+"""Loader for a CSV of posed images: rows ``image,x,y,theta[,scale]`` (an optional header row may name the
+columns, and may add a ``texture`` column).
+
+``image`` is relative to the CSV's folder; (x, y) is the map position of the image's pixel (0, 0) (the pose's
+translation, as in HD Ground); ``theta`` is the Micro-GPS orientation in degrees; ``scale`` (default 1) is map
+pixels per image pixel. Without a texture column the texture is the image's first folder (or the CSV's folder
+name). The CSV is one recording session: pairs are built as for Micro-GPS.
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Mapping
+
+from gtsweep.errors import BadInput
+
+from gtsweep.datasets import options as opts
+from gtsweep.datasets.core import Dataset
+from gtsweep.datasets.geometry import similarity_pose
+from gtsweep.datasets.pairing import POSED_DEFAULTS, posed_dataset
+from gtsweep.datasets.posefiles import Entry, Problems, floats, resolve_image
+
+DEFAULTS = dict(POSED_DEFAULTS)
+COLUMNS = ("image", "x", "y", "theta", "scale")
+
+
+def csv_file(root: Path) -> Path:
+    """``root`` if it is a file, else the single ``*.csv`` inside the folder."""
+    if not root.exists():
+        raise BadInput(f"data set file {root} does not exist")
+    if root.is_file():
+        return root
+    found = sorted(root.glob("*.csv"))
+    if len(found) != 1:
+        raise BadInput(f"{root}: expected one *.csv file, found {len(found)}")
+    return found[0]
+
+
+def read_rows(file: Path, problems: Problems) -> list[tuple[str, str, str, list[float]]]:
+    """("file:line", image path, texture or "", [x, y, theta, scale]) per good row."""
+    try:
+        with file.open(newline="", encoding="utf-8") as handle:
+            rows = [(n, [c.strip() for c in row]) for n, row in enumerate(csv.reader(handle), 1) if any(row)]
+    except (OSError, UnicodeDecodeError, csv.Error) as error:
+        raise BadInput(f"cannot read {file}: {error}") from None
+    columns = list(COLUMNS)
+    if rows and floats(rows[0][1][1:2]) is None:
+        columns = [c.lower() for c in rows.pop(0)[1]]
+        if columns[:4] != list(COLUMNS[:4]):
+            raise BadInput(f"{file}:1: header must start with image,x,y,theta, found {','.join(columns)}")
+    records = []
+    for number, cells in rows:
+        where = f"{file}:{number}"
+        if len(cells) not in (4, 5, 6) or len(cells) > len(columns):
+            problems.report(where, f"expected {','.join(columns[:4])}[,{','.join(columns[4:])}], "
+                                   f"found {len(cells)} values")
+            continue
+        row = dict(zip(columns, cells))
+        values = floats([row["x"], row["y"], row["theta"], row.get("scale") or "1"])
+        if values is None or values[3] <= 0:
+            problems.report(where, f"x, y, theta, scale must be numbers (scale > 0), found {','.join(cells[1:])}")
+            continue
+        records.append((where, row["image"], row.get("texture", ""), values))
+    return records
+
+
+def load(cfg: Mapping) -> Dataset:
+    """Build the data set from ``cfg`` (keys of conf/dataset/csv.yaml); ``root`` is the CSV or its folder."""
+    options = opts.read(cfg, DEFAULTS, "csv")
+    if options["root"] in (None, ""):
+        raise BadInput("dataset.root is required for loader 'csv' (the CSV file or its folder)")
+    file = csv_file(Path(str(options["root"])).expanduser())
+    problems = Problems(options["skip_bad"])
+    entries: dict[str, list[Entry]] = {}
+    for where, listed, texture, (x, y, theta, scale) in read_rows(file, problems):
+        path = resolve_image(listed, [file.parent])
+        if path is None:
+            problems.report(where, f"image {listed} does not exist")
+            continue
+        parts = Path(listed).parts
+        texture = texture or (parts[0] if len(parts) > 1 else file.parent.name)
+        found = entries.setdefault(texture, [])
+        found.append(Entry(path, listed, similarity_pose(x, y, theta, scale), where, str(file), len(found)))
+    if not entries and not problems.skipped:
+        raise BadInput(f"{file}: no images listed")
+    chosen = opts.choose_textures(entries, options["textures"], file)
+    return posed_dataset("csv", file.parent, options, {t: entries[t] for t in chosen}, problems)

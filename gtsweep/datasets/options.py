@@ -1,0 +1,82 @@
+"""Reading a loader's options from the Hydra ``dataset`` node (or a plain dict)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+from gtsweep.errors import BadInput
+
+#: Keys every loader accepts.
+COMMON = {"loader": None, "root": None, "skip_bad": False}
+
+
+def plain(cfg: Mapping) -> dict:
+    """A plain dict from a DictConfig or mapping; a missing mandatory value (``???``) raises BadInput."""
+    try:
+        from omegaconf import DictConfig, OmegaConf
+        from omegaconf.errors import MissingMandatoryValue
+    except ImportError:  # pragma: no cover - hydra-core is a dependency
+        return dict(cfg)
+    if isinstance(cfg, DictConfig):
+        try:
+            return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        except MissingMandatoryValue as error:
+            key = getattr(error, "full_key", "") or "a key"
+            raise BadInput(f"dataset.{key} is required (give it on the command line, e.g. dataset.{key}=...)") \
+                from None
+    return dict(cfg)
+
+
+def read(cfg: Mapping, defaults: Mapping[str, Any], loader: str) -> dict:
+    """``defaults`` updated with ``cfg``; unknown keys and a missing ``root`` (when required) raise BadInput."""
+    given = plain(cfg)
+    known = {**COMMON, **defaults}
+    unknown = sorted(set(given) - set(known))
+    if unknown:
+        raise BadInput(f"unknown key(s) for dataset loader '{loader}': {', '.join(unknown)}; "
+                       f"valid keys: {', '.join(sorted(known))}")
+    merged = {**known, **given}
+    merged["loader"] = loader
+    for key, value in merged.items():
+        if value == "???":
+            raise BadInput(f"dataset.{key} is required (give it on the command line, e.g. dataset.{key}=...)")
+    return merged
+
+
+def root_folder(options: Mapping, loader: str) -> Path:
+    """The existing folder ``options['root']``; BadInput naming it otherwise."""
+    root = options.get("root")
+    if root in (None, ""):
+        raise BadInput(f"dataset.root is required for loader '{loader}' (e.g. dataset.root=/path/to/data)")
+    path = Path(str(root)).expanduser()
+    if not path.exists():
+        raise BadInput(f"data set folder {path} does not exist")
+    if not path.is_dir():
+        raise BadInput(f"data set folder {path} is not a folder")
+    return path
+
+
+def count(options: Mapping, key: str, allow_none: bool = False) -> int | None:
+    """A non-negative integer option."""
+    value = options.get(key)
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise BadInput(f"dataset.{key} must be a non-negative integer, got {value!r}")
+    return value
+
+
+def choose_textures(found, wanted, root: Path) -> list[str]:
+    """The textures to load: all ``found`` ones, or the ``wanted`` list (each must exist)."""
+    found = sorted(found)
+    if wanted is None:
+        return found
+    wanted = [wanted] if isinstance(wanted, str) else list(wanted)
+    missing = [t for t in wanted if t not in found]
+    if missing:
+        raise BadInput(f"{root}: no texture {', '.join(missing)}; found: {', '.join(found) or 'none'}")
+    return wanted
+
+
+#: File name endings the folder-based loaders take as images.
+IMAGE_SUFFIXES = (".png", ".pgm", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm")
