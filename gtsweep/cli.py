@@ -32,6 +32,11 @@ def options(group: str) -> list[str]:
     return sorted(p.stem for p in group_dir(group).glob("*.yaml"))
 
 
+def tuned_options(group: str) -> list[str]:
+    """Configs written by ``experiment=optimize``: ``tuned/<name>`` for conf/<group>/tuned/<name>.yaml."""
+    return sorted(f"tuned/{p.stem}" for p in (group_dir(group) / "tuned").glob("*.yaml"))
+
+
 @lru_cache(maxsize=None)
 def _yaml(path: Path) -> dict:
     return yaml.safe_load(path.read_text()) or {}
@@ -76,7 +81,7 @@ def _values(override) -> list:
 
 
 def _check_group(group: str, values: list) -> None:
-    valid = options(group)
+    valid = options(group) + (tuned_options(group) if group in GRID_GROUPS else [])
     for value in values:
         names = value if isinstance(value, list) else [value]
         if group in SINGLE_GROUPS and isinstance(value, list):
@@ -174,6 +179,21 @@ def resume_args(args: list[str], multirun: bool) -> list[str]:
     return [f"hydra.run.dir={newest.parent}"]
 
 
+def searchpath_override() -> str:
+    """Makes ``sweeps/`` (outside ``conf/``) a config group: presets are selected with ``sweeps=<name>``."""
+    return f"hydra.searchpath=[file://{PROJECT_DIR}]"
+
+
+def compose_config(overrides: list[str]):
+    """The composed config for ``overrides``, as ``python -m gtsweep`` would see it (for scripts and tests)."""
+    from hydra import compose, initialize_config_dir
+
+    overrides = expand_all(list(overrides))
+    validate(overrides)
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        return compose(config_name="config", overrides=[*overrides, searchpath_override()])
+
+
 def fail(error: Exception) -> None:
     print(f"gtsweep: error: {error}", file=sys.stderr)
     sys.exit(2)
@@ -188,7 +208,7 @@ def main(argv: list[str] | None = None) -> None:
         args += resume_args(args, multirun)
     except GtsweepError as e:
         fail(e)
-    args.append(f"hydra.searchpath=[file://{PROJECT_DIR}]")
+    args.append(searchpath_override())
     sys.argv = [sys.argv[0], *args]
     from gtsweep.app import hydra_main
 

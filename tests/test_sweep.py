@@ -1,0 +1,114 @@
+"""The sweep end to end: detection reuse and caching, kill and resume, a two-node Ray cluster, the CLI."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from gtsweep import tasks
+from gtsweep.sweep import run_sweep
+from sweep_helpers import assert_same_cells, cli_env, compose_config, run_cli, tiny_overrides
+
+SERIAL = "runner.backend=serial"
+
+
+def _count_detections(monkeypatch) -> list:
+    calls = []
+    original = tasks.detect_and_select
+
+    def counting(image, mask, detector, *args):
+        calls.append((image.tobytes(), None if mask is None else mask.tobytes(), detector, *map(repr, args)))
+        return original(image, mask, detector, *args)
+
+    monkeypatch.setattr(tasks, "detect_and_select", counting)
+    return calls
+
+
+def test_detection_is_computed_once_and_cached(tmp_path, monkeypatch):
+    calls = _count_detections(monkeypatch)
+    grid = ["detector=[akaze,censure]", "descriptor=[brief,latch,orb,sift]", "selector=[nms]",
+            "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "mlflow.enabled=false"]
+    cfg = compose_config(tiny_overrides(tmp_path, SERIAL, *grid))
+    first = run_sweep(cfg, tmp_path / "run1")
+    # every (image, mask, detector, selector) detected exactly once, however many descriptors use it
+    assert len(calls) == len(set(calls)) == first.stats.cache_misses > 0
+    assert all(s["status"] == "ok" for s in first.summaries)
+    assert len(first.summaries) == 2 * 4 * 2
+    calls.clear()
+    second = run_sweep(cfg, tmp_path / "run2")  # same detections, new output directory
+    assert calls == [] and second.stats.cache_misses == 0 and second.stats.cache_hits >= first.stats.cache_misses
+    assert_same_cells(tmp_path / "run1", tmp_path / "run2")
+
+
+def test_na_cells_and_unavailable_methods_do_not_stop_the_sweep(tmp_path):
+    grid = ["detector=[censure]", "descriptor=[akaze,daisy,brief]", "selector=[nms]", "transform=[incremental]",
+            "mlflow.enabled=false"]
+    outcome = run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "run")
+    status = {s["methods"]["descriptor"]: (s["status"], s.get("reason") or "") for s in outcome.summaries}
+    assert status["akaze"][0] == status["daisy"][0] == "na" and "orientation" in status["daisy"][1]
+    assert status["brief"][0] == "ok"
+    results = (tmp_path / "run" / "results.csv").read_text()
+    assert "only describes AKAZE keypoints" in results
+
+
+def test_ray_two_node_cluster_gives_the_same_numbers_as_serial(tmp_path):
+    ray = pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    grid = ["detector=[akaze,sift]", "descriptor=[brief,sift]", "selector=[nms]", "transform=[absolute]",
+            "mlflow.enabled=false"]
+    serial = run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "serial")
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    cluster.add_node(num_cpus=1)
+    try:
+        cfg = compose_config(tiny_overrides(tmp_path, "runner.backend=ray", f"runner.address={cluster.address}",
+                                            f"cache.dir={tmp_path}/cache-cluster", *grid))
+        clustered = run_sweep(cfg, tmp_path / "cluster")
+        assert len({n["NodeID"] for n in ray.nodes() if n["Alive"]}) == 2
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    assert clustered.stats.cache_misses == serial.stats.cache_misses
+    assert_same_cells(tmp_path / "serial", tmp_path / "cluster")
+
+
+def test_killed_sweep_resumes_to_the_same_numbers(tmp_path):
+    grid = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,sift]", "selector=[nms]",
+            "transform=[incremental,absolute]", "mlflow.enabled=false", "runner.num_cpus=1"]
+    args = tiny_overrides(tmp_path, *grid)
+    reference = run_cli([*args, f"hydra.run.dir={tmp_path}/uninterrupted", f"cache.dir={tmp_path}/cache0"],
+                        tmp_path)
+    assert reference.returncode == 0, reference.stderr[-2000:]
+    victim = subprocess.Popen([sys.executable, "-m", "gtsweep", *args, f"cache.dir={tmp_path}/cache1"],
+                              cwd=tmp_path, env=cli_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True)
+    deadline = time.time() + 240
+    cells = []
+    while time.time() < deadline and victim.poll() is None:
+        cells = list(tmp_path.glob("outputs/*/*/cells/*.json"))
+        if len(cells) >= 3:
+            break
+        time.sleep(0.2)
+    assert victim.poll() is None, "the sweep finished before it could be killed: make the grid larger"
+    os.killpg(victim.pid, signal.SIGKILL)
+    victim.wait()
+    killed_dir = cells[0].parent.parent
+    partial = len(list((killed_dir / "cells").glob("*.json")))
+    assert 3 <= partial < 24
+    resumed = run_cli([*args, f"cache.dir={tmp_path}/cache1", "resume=true"], tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    record = json.loads((killed_dir / "run.json").read_text())
+    assert record["resumed_cells"] == partial
+    assert_same_cells(tmp_path / "uninterrupted", killed_dir)
+
+
+def test_cli_bad_input_is_one_line(tmp_path):
+    result = run_cli(["detector=[sift,surff]"], tmp_path)
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1 and "unknown detector 'surff'" in result.stderr
+    assert not (tmp_path / "outputs").exists()

@@ -1,0 +1,123 @@
+"""MLflow: one parent per sweep, one child per cell with every metric, NA tags, no duplicates on resume, and a real
+``mlflow server`` on loopback answering for the sweep's runs."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+
+import mlflow
+import pytest
+
+from gtsweep.cache import library_versions
+from gtsweep.sweep import run_sweep
+from gtsweep.tracking import SweepTracker, flatten, step_scale
+from sweep_helpers import compose_config, tiny_overrides
+
+GRID = ["detector=[akaze,censure]", "descriptor=[akaze,brief]", "selector=[nms]",
+        "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]
+POSE_METRICS = {"repeatability", "ambiguity", "few_keypoints", "n_detected", "n_kp_test", "n_matches", "n_correct",
+                "precision", "pose_success", "position_error", "orientation_error", "n_inliers", "t_detect",
+                "t_describe", "t_match", "t_pose"}
+
+
+def tracked_sweep(tmp_path, uri):
+    cfg = compose_config(tiny_overrides(tmp_path, *GRID, f"mlflow.tracking_uri={uri}"))
+    tracker = SweepTracker(cfg.mlflow, tmp_path / "run", "config: yes", "test-run")
+    outcome = run_sweep(cfg, tmp_path / "run", hooks=(tracker.log_cell,),
+                        on_start=lambda grid, fp: tracker.start(grid, fp, library_versions()))
+    tracker.end(outcome)
+    return outcome, tracker
+
+
+@pytest.fixture(scope="module")
+def sweep_store(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("tracked")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    outcome, tracker = tracked_sweep(tmp_path, uri)
+    return tmp_path, uri, outcome, tracker
+
+
+def test_one_parent_and_one_child_per_cell(sweep_store):
+    tmp_path, uri, outcome, tracker = sweep_store
+    mlflow.set_tracking_uri(uri)
+    runs = mlflow.search_runs(experiment_names=["gtsweep"])
+    parents = runs[runs["tags.mlflow.parentRunId"].isna()]
+    children = runs[runs["tags.mlflow.parentRunId"] == tracker.parent_id]
+    assert len(parents) == 1 and len(children) == len(outcome.summaries) == 2 * 2 * 2
+    ok = children[children["tags.gtsweep.status"] == "ok"]
+    na = children[children["tags.gtsweep.status"] == "na"]
+    assert len(na) == 2 and (na["tags.gtsweep.reason"].str.contains("AKAZE")).all()
+    for metric in POSE_METRICS:
+        assert ok[f"metrics.{metric}"].notna().all(), metric
+    parent = parents.iloc[0]
+    assert parent["tags.gtsweep.dataset_fingerprint"] == outcome.dataset_fingerprint
+    assert parent["tags.gtsweep.version.opencv"].startswith("5.")
+    assert ok["params.detector.params.threshold"].notna().any()  # the cell's full method configuration
+
+
+def test_strength_curves_are_metric_steps(sweep_store):
+    tmp_path, uri, outcome, tracker = sweep_store
+    client = mlflow.tracking.MlflowClient(uri)
+    run = mlflow.search_runs(experiment_names=["gtsweep"],
+                             filter_string="tags.`gtsweep.cell` = 'akaze__nms__brief__rotation'").iloc[0]
+    history = client.get_metric_history(run.run_id, "pose_success_vs_strength")
+    assert sorted(m.step for m in history) == [0, 90]
+
+
+def test_resumed_sweep_adds_no_duplicate_runs(sweep_store):
+    tmp_path, uri, outcome, tracker = sweep_store
+    before = len(mlflow.search_runs(experiment_names=["gtsweep"]))
+    again, _ = tracked_sweep(tmp_path, uri)
+    assert again.resumed == len(again.summaries)
+    assert len(mlflow.search_runs(experiment_names=["gtsweep"])) == before
+
+
+def test_flatten_and_step_scale():
+    assert flatten({"a": {"b": 1, "c": [1, 2]}, "d": "x"}) == {"a.b": "1", "a.c": "[1, 2]", "d": "x"}
+    assert step_scale([0, 15, 90]) == 1 and step_scale([0.1, 1.0]) == 100
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_mlflow_server_serves_the_sweep(sweep_store, tmp_path):
+    _, uri, outcome, tracker = sweep_store
+    port = _free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--host", "127.0.0.1",
+         "--port", str(port), "--workers", "1", "--default-artifact-root", str(tmp_path / "artifacts")],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.time() + 120
+        while True:
+            try:
+                with urllib.request.urlopen(f"{base}/health", timeout=2) as response:
+                    if response.status == 200:
+                        break
+            except OSError:
+                pass
+            assert server.poll() is None and time.time() < deadline, "mlflow server did not come up"
+            time.sleep(0.5)
+        with urllib.request.urlopen(f"{base}/api/2.0/mlflow/experiments/get-by-name?experiment_name=gtsweep") as r:
+            experiment_id = json.load(r)["experiment"]["experiment_id"]
+        query = json.dumps({"experiment_ids": [experiment_id], "max_results": 1000,
+                            "filter": f"tags.mlflow.parentRunId = '{tracker.parent_id}'"}).encode()
+        request = urllib.request.Request(f"{base}/api/2.0/mlflow/runs/search", data=query,
+                                         headers={"Content-Type": "application/json"})
+        with urllib.request.urlopen(request) as r:
+            runs = json.load(r)["runs"]
+        assert len(runs) == len(outcome.summaries)
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=30)
+    assert server.returncode is not None
