@@ -15,9 +15,12 @@ def connect(runner_cfg: dict) -> None:
     """
     import ray
 
-    if ray.is_initialized():
-        return
     address = runner_cfg.get("address") or "local"
+    if ray.is_initialized():
+        current = ray.get_runtime_context().gcs_address
+        if address in ("local", "auto") or address.split("://")[-1] == current:
+            return
+        ray.shutdown()  # connected elsewhere: the requested cluster wins
     options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
     if runner_cfg.get("runtime_env"):
         options["runtime_env"] = dict(runner_cfg["runtime_env"])

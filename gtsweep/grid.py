@@ -82,7 +82,12 @@ class Grid:
         return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
 
 
+#: Keys of a method config that do not change its results (the optimiser's search space).
+NOT_RESULTS = ("search_space",)
+
+
 def _group(cfg: Mapping, name: str, registry: Mapping) -> dict[str, dict]:
+    """The options of a grid group as ``{name: config}``, without keys that do not change results."""
     node = plain(cfg.get(name))
     if not isinstance(node, dict) or not node:
         raise BadInput(f"the grid needs at least one {name}; choices: {', '.join(sorted(registry))}")
@@ -91,7 +96,7 @@ def _group(cfg: Mapping, name: str, registry: Mapping) -> dict[str, dict]:
             raise UnknownMethod(name, option, registry)
         if not isinstance(settings, dict):
             raise BadInput(f"{name}.{option} must be a mapping with 'params', got {settings!r}")
-    return dict(sorted(node.items()))
+    return {option: {k: v for k, v in node[option].items() if k not in NOT_RESULTS} for option in sorted(node)}
 
 
 def _transforms(cfg: Mapping) -> dict[str, dict]:
