@@ -10,6 +10,7 @@ import hashlib
 import json
 import os
 import tempfile
+from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
@@ -17,13 +18,17 @@ import cv2
 import numpy as np
 
 
+@lru_cache(maxsize=1)
 def library_versions() -> dict:
-    """Versions that change detection results."""
+    """Versions that change detection results, and which SURF runs (OpenCV's nonfree one or gtsweep's port)."""
+    from gtsweep.surf import opencv_surf_available
+
     try:
         own = metadata.version("gtsweep")
     except metadata.PackageNotFoundError:
         own = "source"
-    return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own}
+    surf = "opencv" if opencv_surf_available() else "gtsweep-numpy"
+    return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own, "surf": surf}
 
 
 def detection_key(image: np.ndarray, mask: np.ndarray | None, detector: str, detector_cfg: dict,
