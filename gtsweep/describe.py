@@ -23,23 +23,11 @@ import cv2
 import numpy as np
 
 from gtsweep import keypoints as kp
-from gtsweep.detect import _first_line, get_detector
+from gtsweep.detect import _first_line, create_surf, create_xfeat, get_detector
 from gtsweep.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
 
 _x = cv2.xfeatures2d
 HAMMING, L2 = "hamming", "l2"
-
-
-def _surf(**params):
-    from gtsweep.surf import SURF_create
-
-    return SURF_create(**params)
-
-
-def _xfeat(**params):
-    from gtsweep.xfeat import XFeat_create
-
-    return XFeat_create(**params)
 
 
 @dataclass(frozen=True)
@@ -65,7 +53,7 @@ DESCRIPTORS: dict[str, DescriptorSpec] = {
                        excluded_detectors={"sift": _ORB_SCALES}),
         DescriptorSpec("brief", "BRIEF", _x.BriefDescriptorExtractor_create, HAMMING),
         DescriptorSpec("latch", "LATCH", _x.LATCH_create, HAMMING),
-        DescriptorSpec("surf", "SURF", _surf, L2),
+        DescriptorSpec("surf", "SURF", create_surf, L2),
         DescriptorSpec("sift", "SIFT", cv2.SIFT_create, L2),
         DescriptorSpec("akaze", "AKAZE", _x.AKAZE_create, HAMMING, only_detectors=("akaze",)),
         DescriptorSpec("brisk", "BRISK", _x.BRISK_create, HAMMING),
@@ -75,7 +63,7 @@ DESCRIPTORS: dict[str, DescriptorSpec] = {
         DescriptorSpec("beblid", "BEBLID", _x.BEBLID_create, HAMMING),
         DescriptorSpec("teblid", "TEBLID", _x.TEBLID_create, HAMMING),
         DescriptorSpec("kaze", "KAZE", _x.KAZE_create, L2, only_detectors=("kaze",)),
-        DescriptorSpec("xfeat", "XFeat", _xfeat, L2, learned=True),
+        DescriptorSpec("xfeat", "XFeat", create_xfeat, L2, learned=True),
     ]
 }
 

@@ -20,14 +20,16 @@ from gtsweep.errors import BadInput, GtsweepError, UnknownMethod
 _x = cv2.xfeatures2d
 
 
-def _surf(**params):
-    from gtsweep.surf import SURF_create  # NumPy SURF (or OpenCV's, when a nonfree build is installed)
+def create_surf(**params):
+    """SURF, imported on first use: OpenCV's when a nonfree build is installed, else gtsweep's NumPy port."""
+    from gtsweep.surf import SURF_create
 
     return SURF_create(**params)
 
 
-def _xfeat(**params):
-    from gtsweep.xfeat import XFeat_create  # learned feature, runs on cv2.dnn
+def create_xfeat(**params):
+    """XFeat, imported on first use: the learned feature, run by cv2.dnn."""
+    from gtsweep.xfeat import XFeat_create
 
     return XFeat_create(**params)
 
@@ -58,7 +60,7 @@ DETECTORS: dict[str, DetectorSpec] = {
         DetectorSpec("harris_laplace", "HarrisLaplace", _x.HarrisLaplaceFeatureDetector_create, orientation=False,
                      count_param="maxCorners"),
         DetectorSpec("sift", "SIFT", cv2.SIFT_create, orientation=True, count_param="nfeatures"),
-        DetectorSpec("surf", "SURF", _surf, orientation=True),
+        DetectorSpec("surf", "SURF", create_surf, orientation=True),
         DetectorSpec("censure", "CenSurE", _x.StarDetector_create, orientation=False),
         DetectorSpec("brisk", "BRISK", _x.BRISK_create, orientation=True),
         DetectorSpec("orb", "ORB", cv2.ORB_create, orientation=True, count_param="nfeatures"),
@@ -68,7 +70,7 @@ DETECTORS: dict[str, DetectorSpec] = {
         # MSER has no response: the detection order substitutes for it (first found = largest), as in the survey.
         DetectorSpec("mser", "MSER", cv2.MSER_create, orientation=False, response=False),
         DetectorSpec("msd", "MSD", _x.MSDDetector_create, orientation=False),
-        DetectorSpec("xfeat", "XFeat", _xfeat, orientation=False, learned=True, count_param="top_k"),
+        DetectorSpec("xfeat", "XFeat", create_xfeat, orientation=False, learned=True, count_param="top_k"),
     ]
 }
 
