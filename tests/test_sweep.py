@@ -112,3 +112,15 @@ def test_cli_bad_input_is_one_line(tmp_path):
     assert result.returncode == 2
     assert len(result.stderr.strip().splitlines()) == 1 and "unknown detector 'surff'" in result.stderr
     assert not (tmp_path / "outputs").exists()
+
+
+def test_glob_splits_jobs_and_outer_sweeps_work(tmp_path):
+    grid = ["descriptor=[brief]", "selector=[nms]", "transform=[incremental]", "mlflow.enabled=false",
+            "runner.backend=serial", "report.plots=false"]
+    result = run_cli(["-m", *tiny_overrides(tmp_path, *grid), "detector=glob(a*)", "seed=0,1",
+                      f"hydra.sweep.dir={tmp_path}/multi"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    jobs = sorted(p.parent.name for p in (tmp_path / "multi").glob("*/results.csv"))
+    assert jobs == ["0", "1", "2", "3"]  # {agast, akaze} x {seed 0, 1}, one Hydra job each
+    detectors = {(tmp_path / "multi" / j / "results.csv").read_text().splitlines()[1].split(",")[0] for j in jobs}
+    assert detectors == {"agast", "akaze"}
