@@ -57,6 +57,8 @@ def _app(cfg: DictConfig) -> None:
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
+        if tracker is not None:
+            tracker.abort(str(e))
         fail(e)
     print(format_outcome(outcome, tables))
     print(f"report: {len(files)} tables and plots in {output_dir / 'report'}")
@@ -93,6 +95,9 @@ def format_outcome(outcome: SweepOutcome, tables: list[Table] = ()) -> str:
         f"(= detector calls)",
         f"results: {outcome.table}",
     ]
+    if outcome.skipped_items:
+        lines.append(f"data set: {len(outcome.skipped_items)} bad item(s) skipped (dataset.skip_bad=true); "
+                     f"listed in {outcome.output_dir / 'run.json'}")
     if tables:
         for table in tables:
             lines += ["", table.markdown()]

@@ -33,6 +33,7 @@ class SweepOutcome:
     seconds: float
     table: Path | None = None
     failed: list[str] = field(default_factory=list)
+    skipped_items: list[str] = field(default_factory=list)  # bad data items skipped under dataset.skip_bad
 
 
 def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping) -> dict:
@@ -67,7 +68,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         for hook in hooks:
             hook(cell, summary, rows)
 
-    pending, resumed = set(), 0
+    pending, not_applicable, resumed = set(), [], 0
     for cell in grid.cells:
         done = store.complete(cell.key, hashes[cell.key])
         if done is not None:
@@ -75,20 +76,24 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
             for hook in hooks:  # hooks skip what they already have (e.g. cells logged before a kill)
                 hook(cell, done, None)
         elif cell.na_reason is not None:
-            finish(cell, {"na": cell.na_reason})
+            not_applicable.append(cell)
         else:
             pending.add(cell.key)
     runner_cfg = plain(cfg.get("runner")) or {}
+    # Load (and so check) every image before the first result file is written: bad data stops the run clean.
+    shards = load_shards(dataset, grid, int(runner_cfg.get("shard_size", 4))) if pending else {}
+    for cell in not_applicable:
+        finish(cell, {"na": cell.na_reason})
     stats = RunStats()
     if pending:
-        shards = load_shards(dataset, grid, int(runner_cfg.get("shard_size", 4)))
         jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
         cache_cfg = plain(cfg.get("cache")) or {}
         cache_dir = str(Path(cache_cfg["dir"]).resolve()) if cache_cfg.get("enabled", True) else None
         stats = run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish)
     ordered = [summaries[cell.key] for cell in grid.cells]
     outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
-                           time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"])
+                           time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
+                           skipped_items=list(getattr(dataset, "skipped", [])))
     outcome.table = store.write_table(ordered)
     _write_run_record(outcome, dataset)
     return outcome
@@ -98,7 +103,7 @@ def _write_run_record(outcome: SweepOutcome, dataset) -> None:
     record = {
         "dataset": dataset.name,
         "dataset_fingerprint": outcome.dataset_fingerprint,
-        "skipped_items": list(getattr(dataset, "skipped", [])),
+        "skipped_items": outcome.skipped_items,
         "cells": len(outcome.summaries),
         "resumed_cells": outcome.resumed,
         "cache_hits": outcome.stats.cache_hits,

@@ -8,6 +8,7 @@ server. A resumed sweep reuses its parent run and logs only cells that have no c
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import subprocess
@@ -59,6 +60,8 @@ class SweepTracker:
         import mlflow
         from mlflow.tracking import MlflowClient
 
+        for name in ("mlflow", "alembic"):  # their INFO lines (store creation, migrations) are noise here
+            logging.getLogger(name).setLevel(logging.WARNING)
         self.uri = tracking_uri(cfg)
         self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
         self.output_dir = Path(output_dir)
@@ -143,6 +146,12 @@ class SweepTracker:
                 metrics += [Metric(f"{name}_vs_{step_key}", float(v), now, step)
                             for name, v in values.items() if _finite(v)]
         return metrics
+
+    def abort(self, reason: str) -> None:
+        """Close the parent run as FAILED with the reason (the sweep stopped on bad input)."""
+        if self.parent_id is not None:
+            self.client.set_tag(self.parent_id, REASON_TAG, reason[:5000])
+            self.client.set_terminated(self.parent_id, "FAILED")
 
     def end(self, outcome, artifacts: list[Path] = ()) -> None:
         """Log the sweep's totals and files on the parent run and close it."""

@@ -124,3 +124,23 @@ def test_glob_splits_jobs_and_outer_sweeps_work(tmp_path):
     assert jobs == ["0", "1", "2", "3"]  # {agast, akaze} x {seed 0, 1}, one Hydra job each
     detectors = {(tmp_path / "multi" / j / "results.csv").read_text().splitlines()[1].split(",")[0] for j in jobs}
     assert detectors == {"agast", "akaze"}
+
+
+def test_corrupt_image_stops_before_any_result_file(tmp_path):
+    import dataset_fixtures as fx
+
+    database = fx.microgps(tmp_path / "data")
+    image = database.parent / database.read_text().splitlines()[4]
+    image.write_bytes(b"garbage")
+    args = ["dataset=microgps", f"dataset.root={tmp_path / 'data'}", "dataset.n_incremental=100",
+            "dataset.n_absolute=1", "dataset.absolute_min_gap=4", "dataset.n_synthetic=0", "dataset.n_optimisation=0",
+            "detector=[censure]", "descriptor=[brief,akaze]", "transform=[incremental]", "runner.backend=serial",
+            f"mlflow.tracking_uri=sqlite:///{tmp_path}/mlflow.db", f"cache.dir={tmp_path}/cache"]
+    result = run_cli(args, tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(image) in lines[0] and "cannot read image" in lines[0], result.stderr
+    assert not list(tmp_path.glob("outputs/*/*/cells")) and not list(tmp_path.glob("outputs/*/*/results.csv"))
+    skipped = run_cli([*args, "dataset.skip_bad=true"], tmp_path)
+    assert skipped.returncode == 0, skipped.stderr[-1500:]
+    assert "1 bad item(s) skipped" in skipped.stdout

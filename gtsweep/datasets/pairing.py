@@ -82,6 +82,10 @@ def select_texture(texture: str, entries: Sequence[Entry], options: Mapping, che
     optimisation = sorted(chosen[:n_opt])
     images = {"optimisation": [sample_of(entries[i]) for i in optimisation],
               "synthetic": [sample_of(entries[i]) for i in sorted(chosen[n_opt:])]}
+    for i in order:  # learn the texture's image size even when no single image was asked for
+        if texture in checker.shape:
+            break
+        checker.ok(entries[i], texture)
     if texture not in checker.shape:
         return images, {"incremental": [], "absolute": []}
     shape = checker.shape[texture]
