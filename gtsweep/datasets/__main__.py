@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from gtsweep.datasets import load_dataset, overlap, rotation_deg
+from gtsweep.datasets import load_dataset, overlap, rotation_deg, synthetic
 from gtsweep.errors import GtsweepError
 from gtsweep.paths import CONF_DIR
 
@@ -18,10 +18,12 @@ SURVEY = {"incremental": (0.227, 0.017, 3.0), "absolute": (0.437, None, 120.0)}
 
 def pair_statistics(dataset) -> dict[str, dict]:
     """Per pair kind: count, overlap mean/min/max and rotation mean/max (degrees), from the poses."""
-    stats = {}
+    stats, shapes = {}, {}
     for kind in SURVEY:
         pairs = dataset.pairs(kind)
-        overlaps = np.array([overlap(p.reference.pose, p.test.pose, p.reference.load().shape) for p in pairs])
+        for p in pairs:  # one image per texture gives its size
+            shapes.setdefault(p.texture, p.reference.load().shape)
+        overlaps = np.array([overlap(p.reference.pose, p.test.pose, shapes[p.texture]) for p in pairs])
         rotations = np.array([rotation_deg(p.reference.pose, p.test.pose) for p in pairs])
         stats[kind] = {"pairs": len(pairs)} if not len(pairs) else {
             "pairs": len(pairs), "overlap_mean": overlaps.mean(), "overlap_min": overlaps.min(),
@@ -55,6 +57,10 @@ def main(argv: list[str] | None = None) -> int:
             cfg = compose(config_name="dataset_stats", overrides=overrides)
         dataset = load_dataset(cfg.dataset)
         print(format_statistics(dataset.name, pair_statistics(dataset)))
+        seconds = synthetic.generation_seconds(dataset, cfg.dataset.cache_dir) if dataset.name == "synthetic" \
+            else None
+        if seconds is not None:
+            print(f"rendered in {seconds:.1f} s (cached under {cfg.dataset.cache_dir}/datasets/)")
     except (GtsweepError, HydraException) as error:
         print(f"gtsweep.datasets: error: {str(error).splitlines()[0]}", file=sys.stderr)
         return 2

@@ -66,6 +66,12 @@ def blobs(rng: np.random.Generator, shape, spacing_px: float, radius_px: tuple[f
     return depth > 0, value[index], depth
 
 
+def grid(shape) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates as broadcastable float32 (h, 1) and (1, w) arrays (cheaper than a full mesh)."""
+    h, w = shape
+    return np.arange(h, dtype=np.float32)[:, None], np.arange(w, dtype=np.float32)[None, :]
+
+
 def finish(field: np.ndarray, mean: float, std: float, blur_px: float = 0.7) -> np.ndarray:
     """Band-limit (Gaussian ``blur_px``), then set mean and std (gray levels) and clip to [0, 255]."""
     field = cv2.GaussianBlur(field.astype(np.float32), (0, 0), blur_px) if blur_px > 0 else field
@@ -75,7 +81,7 @@ def finish(field: np.ndarray, mean: float, std: float, blur_px: float = 0.7) -> 
 
 def asphalt(rng, shape, ppm: float, stone_mm: float, contrast: float, voids: float) -> np.ndarray:
     """Aggregate stones (diameter ~``stone_mm``) of varied brightness in a dark grainy binder with voids."""
-    spacing = stone_mm * 1.05 * ppm
+    spacing = stone_mm * 0.8 * ppm
     mask, value, depth = blobs(rng, shape, spacing, (0.35 * stone_mm * ppm, 0.6 * stone_mm * ppm),
                                0.18 * stone_mm * ppm)
     grain = smooth_noise(rng, shape, 0.35 * ppm)
@@ -103,7 +109,7 @@ def carpet(rng, shape, ppm):
     """Loop-pile carpet: a fine, slightly irregular weave (period ≈1.6 mm), tuft noise and soft mottling."""
     h, w = shape
     period = 1.6 * ppm
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    y, x = grid(shape)
     jitter = 0.6 * period
     phase_x = (x + jitter * smooth_noise(rng, shape, 6 * ppm)) * (2 * np.pi / period)
     phase_y = (y + jitter * smooth_noise(rng, shape, 6 * ppm)) * (2 * np.pi / period)
@@ -117,17 +123,17 @@ def carpet(rng, shape, ppm):
 def concrete(rng, shape, ppm):
     """Concrete: smooth low-contrast mottling, fine sand grain and sparse dark pores."""
     field = fractal(rng, shape, (2 * ppm, 6 * ppm, 20 * ppm, 60 * ppm), (0.25, 0.35, 0.45, 0.5))
-    field += 0.18 * smooth_noise(rng, shape, 0.4 * ppm)
-    pores, _, depth = blobs(rng, shape, 3.5 * ppm, (0.15 * ppm, 0.6 * ppm), 0.1 * ppm)
-    field -= 2.2 * pores * np.sqrt(depth)
-    return finish(field, 135, 16, blur_px=0.7)
+    field += 0.3 * smooth_noise(rng, shape, 0.5 * ppm)
+    pores, _, depth = blobs(rng, shape, 2.2 * ppm, (0.2 * ppm, 0.7 * ppm), 0.15 * ppm)
+    field -= 2.5 * pores * np.sqrt(depth)
+    return finish(field, 135, 20, blur_px=0.6)
 
 
 def tiles(rng, shape, ppm):
     """Floor tiles (50 mm) with darker grout lines (2.5 mm), per-tile shade and a subtle speckle."""
     h, w = shape
     size, grout = 50 * ppm, 2.5 * ppm
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    y, x = grid(shape)
     offset = rng.uniform(0, size, 2)
     col, row = np.floor((x + offset[0]) / size), np.floor((y + offset[1]) / size)
     fx, fy = (x + offset[0]) % size, (y + offset[1]) % size
@@ -146,22 +152,26 @@ def tiles(rng, shape, ppm):
 def wood(rng, shape, ppm):
     """Wooden floor: planks (90 mm) of long anisotropic grain with soft growth rings; weak texture."""
     h, w = shape
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    y, x = grid(shape)
     plank_w = 90 * ppm
     plank = np.floor(y / plank_w)
     warp = 4 * ppm * smooth_noise(rng, shape, 60 * ppm)
     rings = np.sin((y + warp + 37 * plank * ppm) * (2 * np.pi / (6 * ppm)))
     grain = anisotropic_noise(rng, shape, 25 * ppm, 0.45 * ppm)
-    pores = anisotropic_noise(rng, shape, 3 * ppm, 0.3 * ppm)
+    pores = anisotropic_noise(rng, shape, 1.5 * ppm, 0.4 * ppm)
     n_planks = int(plank.max()) + 1
     plank_shade = rng.normal(0, 1, n_planks).astype(np.float32)[plank.astype(int)]
-    field = 0.5 * rings + 0.6 * grain + 0.15 * pores + 0.5 * plank_shade
+    narrow = (h, w // 5 + 1)  # pores: dark flecks drawn 5x narrower, then stretched along the grain
+    flecks, _, fleck_depth = blobs(rng, narrow, 1.4 * ppm, (0.15 * ppm, 0.45 * ppm), 0.1 * ppm)
+    flecks = cv2.resize((flecks * fleck_depth).astype(np.float32), (narrow[1] * 5, h),
+                        interpolation=cv2.INTER_LINEAR)[:, :w]
+    field = 0.5 * rings + 0.6 * grain + 0.35 * pores + 0.5 * plank_shade - 3.0 * flecks
     field += 0.3 * smooth_noise(rng, shape, 40 * ppm)
     seam = np.abs(y - (plank + 0.5) * plank_w) > plank_w / 2 - 0.6 * ppm
     joints = rng.uniform(0, w, n_planks)[plank.astype(int)]
-    seam |= np.abs(((x - joints) % (900 * ppm)) - 450 * ppm) > 450 * ppm - 0.6 * ppm
-    field = np.where(seam, field.min(), field)
-    return finish(field, 125, 14, blur_px=0.9)
+    seam = seam | (np.abs(((x - joints) % (900 * ppm)) - 450 * ppm) > 450 * ppm - 0.6 * ppm)
+    body = field[~seam]
+    return finish(np.where(seam, body.mean() - 4 * body.std(), field), 125, 18, blur_px=0.6)
 
 
 #: The survey's six texture types (Micro-GPS).
