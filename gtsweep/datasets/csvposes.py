@@ -36,8 +36,8 @@ def csv_file(root: Path) -> Path:
     return found[0]
 
 
-def read_rows(file: Path, problems: Problems) -> list[tuple[str, str, str, list[float]]]:
-    """("file:line", image path, texture or "", [x, y, theta, scale]) per good row."""
+def read_rows(file: Path, problems: Problems) -> dict[str, list[Entry]]:
+    """Posed entries per texture, in file order; bad rows and missing images go to ``problems``."""
     try:
         with file.open(newline="", encoding="utf-8") as handle:
             rows = [(n, [c.strip() for c in row]) for n, row in enumerate(csv.reader(handle), 1) if any(row)]
@@ -48,7 +48,7 @@ def read_rows(file: Path, problems: Problems) -> list[tuple[str, str, str, list[
         columns = [c.lower() for c in rows.pop(0)[1]]
         if columns[:4] != list(COLUMNS[:4]):
             raise BadInput(f"{file}:1: header must start with image,x,y,theta, found {','.join(columns)}")
-    records = []
+    entries: dict[str, list[Entry]] = {}
     for number, cells in rows:
         where = f"{file}:{number}"
         if len(cells) not in (4, 5, 6) or len(cells) > len(columns):
@@ -60,8 +60,15 @@ def read_rows(file: Path, problems: Problems) -> list[tuple[str, str, str, list[
         if values is None or values[3] <= 0:
             problems.report(where, f"x, y, theta, scale must be numbers (scale > 0), found {','.join(cells[1:])}")
             continue
-        records.append((where, row["image"], row.get("texture", ""), values))
-    return records
+        path = resolve_image(row["image"], [file.parent])
+        if path is None:
+            problems.report(where, f"image {row['image']} does not exist")
+            continue
+        parts = Path(row["image"]).parts
+        texture = row.get("texture") or (parts[0] if len(parts) > 1 else file.parent.name)
+        found = entries.setdefault(texture, [])
+        found.append(Entry(path, row["image"], similarity_pose(*values), where, str(file), len(found)))
+    return entries
 
 
 def load(cfg: Mapping) -> Dataset:
@@ -71,16 +78,7 @@ def load(cfg: Mapping) -> Dataset:
         raise BadInput("dataset.root is required for loader 'csv' (the CSV file or its folder)")
     file = csv_file(Path(str(options["root"])).expanduser())
     problems = Problems(options["skip_bad"])
-    entries: dict[str, list[Entry]] = {}
-    for where, listed, texture, (x, y, theta, scale) in read_rows(file, problems):
-        path = resolve_image(listed, [file.parent])
-        if path is None:
-            problems.report(where, f"image {listed} does not exist")
-            continue
-        parts = Path(listed).parts
-        texture = texture or (parts[0] if len(parts) > 1 else file.parent.name)
-        found = entries.setdefault(texture, [])
-        found.append(Entry(path, listed, similarity_pose(x, y, theta, scale), where, str(file), len(found)))
+    entries = read_rows(file, problems)
     if not entries and not problems.skipped:
         raise BadInput(f"{file}: no images listed")
     chosen = opts.choose_textures(entries, options["textures"], file)

@@ -21,7 +21,7 @@ def plain(cfg: Mapping) -> dict:
         try:
             return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
         except MissingMandatoryValue as error:
-            key = getattr(error, "full_key", "") or "a key"
+            key = str(getattr(error, "full_key", "") or "root").removeprefix("dataset.")
             raise BadInput(f"dataset.{key} is required (give it on the command line, e.g. dataset.{key}=...)") \
                 from None
     return dict(cfg)
