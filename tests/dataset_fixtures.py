@@ -88,3 +88,20 @@ def image_folder(root: Path, textures=("asphalt", "wood"), n: int = 4) -> Path:
 def _mkdir(path: Path) -> Path:
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def transfer_error(reference: np.ndarray, test: np.ndarray, H: np.ndarray) -> tuple[float, int]:
+    """Mean |test(p) - reference(H p)| over test pixels p whose image H p lies inside the reference (bilinear),
+    and how many pixels that is."""
+    h, w = test.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    mapped = H @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
+    mx, my = (mapped[:2] / mapped[2]).reshape(2, h, w).astype(np.float32)
+    inside = (mx >= 1) & (mx <= reference.shape[1] - 2) & (my >= 1) & (my <= reference.shape[0] - 2)
+    warped = cv2.remap(reference.astype(np.float32), mx, my, cv2.INTER_LINEAR)
+    if not inside.any():
+        return float("nan"), 0
+    return float(np.abs(warped - test.astype(np.float32))[inside].mean()), int(inside.sum())
+
+
+SHIFT_2PX = np.array([[1, 0, 2.0], [0, 1, 0], [0, 0, 1]])
