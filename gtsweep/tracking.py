@@ -121,7 +121,8 @@ class SweepTracker:
             tags[REASON_TAG] = str(summary["reason"])[:5000]
         run = self.client.create_run(self.experiment_id, run_name=cell.key, tags=tags)
         now = int(time.time() * 1000)
-        metrics = [Metric(k, float(v), now, 0) for k, v in (summary.get("metrics") or {}).items() if _finite(v)]
+        # undefined values (e.g. ambiguity when no keypoint repeats) are logged as NaN: every metric is present
+        metrics = [Metric(k, _number(v), now, 0) for k, v in (summary.get("metrics") or {}).items()]
         metrics += self._step_metrics(summary, now)
         for step_key in ("strength", "reference_count"):
             if summary.get(f"by_{step_key}"):
@@ -170,6 +171,11 @@ class SweepTracker:
 
 def _finite(value) -> bool:
     return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _number(value) -> float:
+    """A metric value for MLflow: None (NaN after a JSON round trip) becomes NaN."""
+    return math.nan if value is None else float(value)
 
 
 def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[dict]:
