@@ -175,8 +175,9 @@ def _ray_execute(grid, shards, jobs, runner_cfg, seed, cache_dir) -> Iterable:
     from gtsweep.cluster import connect
 
     connect(runner_cfg)
-    detect_remote = ray.remote(num_returns=2)(tasks.detect_shard)
-    pair_remote = ray.remote(tasks.pair_shard)
+    threads = runner_cfg.get("opencv_threads", 1)
+    detect_remote = ray.remote(num_returns=2)(_with_opencv_threads(tasks.detect_shard, threads))
+    pair_remote = ray.remote(_with_opencv_threads(tasks.pair_shard, threads))
     shard_refs = {kind: [ray.put(s) for s in kind_shards] for kind, kind_shards in shards.items()}
     pending = {}
     for job in jobs:
@@ -192,6 +193,22 @@ def _ray_execute(grid, shards, jobs, runner_cfg, seed, cache_dir) -> Iterable:
         done, _ = ray.wait(list(pending), num_returns=1)
         for ref in done:
             yield pending.pop(ref), ray.get(ref)
+
+
+def _with_opencv_threads(function, threads: int | None):
+    """``function`` run with OpenCV limited to ``threads`` threads: Ray runs one task per CPU, so OpenCV's own
+    thread pool in every worker would only make the workers compete for the same cores."""
+    import functools
+
+    @functools.wraps(function)
+    def run(*args):
+        if threads:
+            import cv2
+
+            cv2.setNumThreads(int(threads))
+        return function(*args)
+
+    return run
 
 
 class _progress:
