@@ -17,7 +17,7 @@ from gtsweep.cli import compose_config
 from gtsweep.datasets import load_dataset
 from gtsweep.describe import describe, descriptor_params
 from gtsweep.detect import detect
-from gtsweep.grid import build_grid, plain
+from gtsweep.grid import build_grid
 from gtsweep.match import match_descriptors
 from gtsweep.pose import estimate_pose
 from gtsweep.select import select_nms

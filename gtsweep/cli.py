@@ -6,7 +6,6 @@ and, with ``resume=true``, points Hydra at the newest earlier output directory o
 """
 from __future__ import annotations
 
-import fnmatch
 import hashlib
 import json
 import sys

@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 
 from gtsweep import keypoints as kp
-from gtsweep.detect import _first_line, create_surf, create_xfeat, get_detector
-from gtsweep.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
+from gtsweep.detect import build_method, create_surf, create_xfeat, first_line, get_detector
+from gtsweep.errors import NotApplicable, UnknownMethod
 
 _x = cv2.xfeatures2d
 HAMMING, L2 = "hamming", "l2"
@@ -120,7 +120,7 @@ def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector
     reason = applicability(detector, name)
     if reason is not None:
         raise NotApplicable(reason)
-    extractor = _create(spec, params)
+    extractor = build_method("descriptor", spec.name, spec.create, params)
     prepared = _prepare(keypoints, detector, name)
     if len(prepared) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), 0.0
@@ -129,20 +129,11 @@ def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector
         found, descriptors = extractor.compute(image, kp.to_keypoints(prepared))
     except cv2.error as e:
         raise NotApplicable(f"the {spec.label} descriptor failed on {get_detector(detector).label} keypoints: "
-                            f"{_first_line(e)}") from None
+                            f"{first_line(e)}") from None
     seconds = time.perf_counter() - start
     if descriptors is None or len(found) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), seconds
     return kp.to_array(found), np.ascontiguousarray(descriptors), seconds
-
-
-def _create(spec: DescriptorSpec, params: dict):
-    try:
-        return spec.create(**params)
-    except ImportError as e:
-        raise GtsweepError(f"descriptor '{spec.name}' is not available: {e}") from None
-    except (TypeError, cv2.error) as e:
-        raise BadInput(f"descriptor '{spec.name}' rejects its parameters {params}: {_first_line(e)}") from None
 
 
 def _prepare(keypoints: np.ndarray, detector: str, descriptor: str) -> np.ndarray:

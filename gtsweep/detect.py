@@ -83,15 +83,19 @@ def get_detector(name: str) -> DetectorSpec:
         raise UnknownMethod("detector", name, DETECTORS) from None
 
 
+def build_method(family: str, name: str, factory: Callable[..., object], params: dict):
+    """``factory(**params)``; a method that is not installed or rejects its parameters is a one-line error."""
+    try:
+        return factory(**params)
+    except ImportError as e:
+        raise GtsweepError(f"{family} '{name}' is not available: {e}") from None
+    except (TypeError, cv2.error) as e:
+        raise BadInput(f"{family} '{name}' rejects its parameters {params}: {first_line(e)}") from None
+
+
 def create_detector(name: str, **params):
     """An OpenCV-style detector object for ``name`` built with ``params`` (OpenCV's argument names)."""
-    spec = get_detector(name)
-    try:
-        return spec.create(**params)
-    except ImportError as e:
-        raise GtsweepError(f"detector '{name}' is not available: {e}") from None
-    except (TypeError, cv2.error) as e:
-        raise BadInput(f"detector '{name}' rejects its parameters {params}: {_first_line(e)}") from None
+    return build_method("detector", name, get_detector(name).create, params)
 
 
 def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> np.ndarray:
@@ -114,7 +118,7 @@ def detect_timed(image: np.ndarray, name: str, mask: np.ndarray | None = None, *
     try:
         found = detector.detect(image, mask)
     except cv2.error as e:
-        raise GtsweepError(f"detector '{name}' failed: {_first_line(e)}") from None
+        raise GtsweepError(f"detector '{name}' failed: {first_line(e)}") from None
     seconds = time.perf_counter() - start
     array = kp.to_array(found)
     if not spec.response and len(array):
@@ -129,6 +133,7 @@ def _check_image(image: np.ndarray) -> None:
         raise BadInput("images must be 2-D uint8 gray arrays")
 
 
-def _first_line(error: Exception) -> str:
+def first_line(error: Exception) -> str:
+    """The last non-empty line of an error message (OpenCV puts the reason there)."""
     lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
     return lines[-1] if lines else type(error).__name__

@@ -6,7 +6,6 @@ from gtsweep import keypoints as kp
 from gtsweep.describe import DESCRIPTORS, applicability, describe, descriptor_params
 from gtsweep.detect import DETECTORS, detect
 from gtsweep.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
-from gtsweep.grid import plain
 from gtsweep.paths import CONF_DIR
 from gtsweep.select import select_nms
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from gtsweep.report import build_tables, fmt, load_summaries, main, write_report
+from gtsweep.report import build_tables, fmt, main, write_report
 from gtsweep.sweep import run_sweep
 from sweep_helpers import compose_config, tiny_overrides
 
