@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 
 # The main job: a small sweep on the embedded default data set, then one of the survey's tables.
 demo: $(STAMP)
-	$(BIN)/python -m gtsweep -m +sweep=smoke
+	$(BIN)/python -m gtsweep sweeps=smoke
 
 # pytest's exit code 5 (no test collected) counts as a failure.
 test: $(STAMP)
