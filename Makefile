@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test bench ui reproduce clean
+.PHONY: install demo test bench ui clean
 
 install: $(STAMP)
 
