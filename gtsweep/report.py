@@ -172,7 +172,8 @@ def table_detectors(df: pd.DataFrame) -> Table | None:
                     "ambiguity": fmt(row.ambiguity, said.get("ambiguity")),
                     "time (s)": fmt(row.t_detect, None, 3)})
     table = pd.DataFrame(out).set_index("detector")
-    return Table("table3_detectors", "Survey Table 3: detectors on synthetic transforms (best selector)", table)
+    used = ", ".join(sorted(df.loc[df["descriptor"].isna() & (df["status"] == "ok"), "transform"].unique()))
+    return Table("table3_detectors", f"Survey Table 3: detectors, best selector (transforms: {used})", table)
 
 
 def table_pairings(df: pd.DataFrame) -> Table | None:
