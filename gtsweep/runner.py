@@ -189,8 +189,8 @@ def _ray_execute(grid, shards, jobs, runner_cfg, seed, cache_dir) -> Iterable:
             ref = pair_remote.remote(shard_ref, job.transform, grid.transforms[job.transform], payload_ref,
                                      detector, descriptor, params, experiment, seed_)
             pending[ref] = pairing
-    while pending:
-        done, _ = ray.wait(list(pending), num_returns=1)
+    while pending:  # collect finished tasks in batches: one ray.wait per result would be quadratic
+        done, _ = ray.wait(list(pending), num_returns=min(64, len(pending)), timeout=0.2)
         for ref in done:
             yield pending.pop(ref), ray.get(ref)
 
