@@ -152,8 +152,9 @@ def validate(args: list[str]) -> None:
             raise BadInput(f"unknown config key '{key}' (to add a new key write +{key}=...)")
         for value in _values(override):
             if not _compatible(default, value):
-                raise BadInput(f"override '{key}={value}': expected a {type(default).__name__} like the default "
-                               f"{default!r}, got {type(value).__name__}")
+                kind = type(default).__name__
+                raise BadInput(f"override '{key}={value}': expected {'an' if kind[0] in 'aeiou' else 'a'} {kind} "
+                               f"like the default {default!r}, got {type(value).__name__}")
 
 
 def sweep_key(args: list[str]) -> str:
