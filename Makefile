@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test bench ui clean
+.PHONY: install demo test bench ui reproduce clean
 
 install: $(STAMP)
 
@@ -28,6 +28,10 @@ bench: $(STAMP)
 
 ui: $(STAMP)
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port 5000
+
+# The long run: every survey table preset on the embedded data set (about an hour), docs/REPRODUCTION.md.
+reproduce: $(STAMP)
+	$(BIN)/python -m gtsweep.reproduce --size hour
 
 clean:
 	rm -rf .gtsweep_cache outputs multirun
