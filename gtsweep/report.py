@@ -20,6 +20,7 @@ from gtsweep.describe import DESCRIPTORS
 from gtsweep.detect import DETECTORS
 from gtsweep.errors import GtsweepError
 from gtsweep.paths import PACKAGE_DIR
+from gtsweep.results import summary_table
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
 #: Our learned feature is compared with the survey's learned one.
@@ -86,11 +87,8 @@ def load_summaries(source: str | Path) -> list[dict]:
 
 
 def frame(summaries: list[dict]) -> pd.DataFrame:
-    """One row per cell: methods, status, reason and mean metrics."""
-    rows = [{**s["methods"], "status": s["status"], "reason": s.get("reason"), **(s.get("metrics") or {}),
-             "by_reference_count": s.get("by_reference_count")} for s in summaries]
-    df = pd.DataFrame(rows)
-    return df
+    """:func:`~gtsweep.results.summary_table` plus each cell's success per reference count (Table 7)."""
+    return summary_table(summaries).assign(by_reference_count=[s.get("by_reference_count") for s in summaries])
 
 
 def _ok(df: pd.DataFrame, metric: str) -> pd.Series:

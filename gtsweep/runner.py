@@ -211,18 +211,10 @@ def _with_opencv_threads(function, threads: int | None):
     return run
 
 
-class _progress:
-    """A tqdm bar on an interactive terminal; silent in CI logs and pipes."""
+def _progress(total: int, enabled: bool):
+    """A tqdm bar (a context manager) on an interactive terminal; silent in CI logs and pipes."""
+    from tqdm import tqdm
 
-    def __init__(self, total: int, enabled: bool):
-        from tqdm import tqdm
-
-        self.bar = tqdm(total=total, unit="task", desc="gtsweep", file=sys.stderr,
-                        disable=not (enabled and sys.stderr.isatty()), mininterval=0.5)
-
-    def __enter__(self):
-        return self.bar
-
-    def __exit__(self, *exc):
-        self.bar.close()
+    return tqdm(total=total, unit="task", desc="gtsweep", file=sys.stderr,
+                disable=not (enabled and sys.stderr.isatty()), mininterval=0.5)
 
