@@ -4,6 +4,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from omegaconf import OmegaConf
 
 from gtsweep import cli
 from gtsweep.cache import KeypointCache, detection_key
@@ -121,3 +122,16 @@ def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):
     (run / cli.SWEEP_RECORD).write_text(json.dumps({"key": cli.sweep_key(["detector=[sift]"])}))
     assert cli.resume_args(args, multirun=False) == [f"hydra.run.dir={run}"]
     assert cli.resume_args(["detector=[orb]", "resume=true"], multirun=False) == []
+
+
+@pytest.mark.parametrize("preset", sorted(p.stem for p in cli.CONF_DIR.parent.joinpath("sweeps").glob("*.yaml")))
+def test_every_preset_composes_into_a_grid(preset):
+    """Each preset of sweeps/ composes (its tuned detector configs are committed) and builds a non-empty grid."""
+    cfg = cli.compose_config([f"sweeps={preset}"])
+    grid = build_grid(cfg)
+    assert len(grid.cells) > 0
+    if preset.startswith("table"):
+        tuned = cli.CONF_DIR / "detector" / "tuned"
+        for name in cfg.detector:
+            tuned_params = OmegaConf.load(tuned / f"{name}.yaml")[name].params
+            assert cfg.detector[name].params == tuned_params, name
