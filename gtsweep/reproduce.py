@@ -98,6 +98,13 @@ def write_document(results: list[dict], size: str, docs: Path) -> Path:
              "|---|---|---|---|---|---|"]
     lines += [f"| {r['preset']} | {r['cells']} | {r['wall_s']:.0f} | {r['peak_mb']:.0f} | "
               f"{r['cache_hit_rate']:.2f} | {r['mlflow_runs']} |" for r in results]
+    lines += [f"| all | {sum(r['cells'] for r in results)} | {sum(r['wall_s'] for r in results):.0f} | "
+              f"{max(r['peak_mb'] for r in results):.0f} | | {sum(r['mlflow_runs'] for r in results)} |", "",
+              "Wall time and peak resident memory (sampled every 0.5 s, the whole process tree: driver and Ray "
+              "workers) of each preset's own `python -m gtsweep` process on this machine; cache hit rate: share of "
+              "its keypoint detections found in the cache shared by the presets (a detection reused by several "
+              "descriptors within one preset is computed once and not counted again); MLflow runs: the preset's "
+              "parent run plus one child run per cell."]
     summaries = {}
     for r in results:
         summaries[r["preset"]] = load_summaries(r["output"])
@@ -127,8 +134,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--presets", nargs="*", default=list(PRESETS), choices=PRESETS)
     parser.add_argument("--work", default=".gtsweep_cache/reproduce", help="where the runs go")
     parser.add_argument("--docs", default=str(PROJECT_DIR / "docs"), help="where REPRODUCTION.md goes")
+    parser.add_argument("--document-only", action="store_true",
+                        help="rebuild REPRODUCTION.md from the runs already in --work (e.g. after editing "
+                             "docs/reproduction_notes.md), without running anything")
     args = parser.parse_args(argv)
     work = Path(args.work).resolve()
+    record = work / "measurements.json"
+    if args.document_only:
+        if not record.exists():
+            raise SystemExit(f"gtsweep.reproduce: no finished reproduction in {work} (missing {record.name})")
+        saved = json.loads(record.read_text())
+        results = [{**r, "output": Path(r["output"])} for r in saved["presets"]]
+        print(f"wrote {write_document(results, saved['size'], Path(args.docs))}")
+        return 0
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     uri = f"sqlite:///{work / 'mlflow.db'}"
@@ -139,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         r = results[-1]
         print(f"  {r['cells']} cells, {r['wall_s']:.0f} s, peak {r['peak_mb']:.0f} MB, "
               f"cache hit rate {r['cache_hit_rate']:.2f}, {r['mlflow_runs']} MLflow runs", flush=True)
+    record.write_text(json.dumps({"size": args.size, "presets": results}, default=str, indent=1))
     print(f"wrote {write_document(results, args.size, Path(args.docs))}")
     return 0
 

@@ -131,3 +131,33 @@ def test_every_finding_holds_on_the_papers_own_numbers():
 def test_each_check_tolerates_a_missing_preset(text, check):
     holds, evidence = check({})
     assert holds is None and evidence == ""
+
+
+def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
+    """--document-only: REPRODUCTION.md from saved measurements and cells, with paper numbers, findings and notes."""
+    import json
+
+    from gtsweep import reproduce
+    from gtsweep.sweep import run_sweep
+    from sweep_helpers import compose_config, tiny_overrides
+
+    work, docs = tmp_path / "work", tmp_path / "docs"
+    output = work / "table4_incremental"
+    grid = ["runner.backend=serial", "mlflow.enabled=false", "detector=[censure]", "descriptor=[brief]",
+            "selector=[nms]", "transform=[incremental]"]
+    run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), output)
+    with pytest.raises(SystemExit, match="no finished reproduction"):
+        reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs)])
+    measured = {"preset": "table4_incremental", "output": str(output), "wall_s": 12.4, "peak_mb": 345.6,
+                "cache_hit_rate": 0.25, "mlflow_runs": 2, "cells": 1}
+    (work / "measurements.json").write_text(json.dumps({"size": "tiny", "presets": [measured]}))
+    docs.mkdir()
+    (docs / "reproduction_notes.md").write_text("## Why\n\nHand-written explanation.")
+    assert reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs)]) == 0
+    text = (docs / "REPRODUCTION.md").read_text()
+    assert "| table4_incremental | 1 | 12 | 346 | 0.25 | 2 |" in text
+    assert "| all | 1 | 12 | 346 | | 2 |" in text
+    assert "| CenSurE |" in text and "(0.90)" in text  # CenSurE-BRIEF beside the paper's 0.90
+    assert "CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)" in text
+    assert text.rstrip().endswith("Hand-written explanation.")
+    assert (docs / "reproduction" / "table4_incremental.csv").exists()
