@@ -105,24 +105,31 @@ def write_document(results: list[dict], size: str, docs: Path) -> Path:
               "its keypoint detections found in the cache shared by the presets (a detection reused by several "
               "descriptors within one preset is computed once and not counted again); MLflow runs: the preset's "
               "parent run plus one child run per cell."]
-    summaries = {}
+    summaries, tables = {}, ["", "## The tables", "",
+                             "Each preset's table in the survey's layout, `ours (paper)`, with its plots."]
     for r in results:
         summaries[r["preset"]] = load_summaries(r["output"])
         for table in build_tables(summaries[r["preset"]]):
             if table.name != r["preset"]:  # e.g. the Table 2 sweep also fills Table 3; its own preset shows it
                 continue
-            lines += ["", table.markdown()]
+            tables += ["", table.markdown()]
             (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
         for png in sorted((r["output"] / "report").glob("*.png")):
             target = assets / f"{r['preset']}__{png.name}"
             shutil.copy(png, target)
-            lines += ["", f"![{png.stem}](reproduction/{target.name})"]
-    lines += ["", "## The survey's findings on our data", "", "| finding | holds? | our numbers |", "|---|---|---|"]
-    lines += [f"| {f} | {verdict} | {evidence} |"
-              for f, verdict, evidence in check_findings({k: frame(v) for k, v in summaries.items()})]
+            tables += ["", f"![{png.stem}](reproduction/{target.name})"]
+    findings = check_findings({k: frame(v) for k, v in summaries.items()})
+    counts = {v: sum(1 for _, verdict, _ in findings if verdict == v) for v in ("holds", "does not hold")}
+    lines += ["", "## The survey's findings on our data", "",
+              f"{counts['holds']} hold, {counts['does not hold']} do not"
+              + (f", {len(findings) - sum(counts.values())} not measured" if len(findings) > sum(counts.values())
+                 else "") + " (how each is checked: `gtsweep/reproduce_findings.py`; why some do not hold: below).",
+              "", "| finding | holds? | our numbers |", "|---|---|---|"]
+    lines += [f"| {f} | {verdict} | {evidence} |" for f, verdict, evidence in findings]
     notes = docs / "reproduction_notes.md"
     if notes.exists():
         lines += ["", notes.read_text().strip()]
+    lines += tables
     path = docs / "REPRODUCTION.md"
     path.write_text("\n".join(lines) + "\n")
     return path
