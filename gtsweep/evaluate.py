@@ -62,7 +62,8 @@ def pairing_metrics(view: ViewPair, ref_kps, test_kps, descriptor: str, descript
     ref_kept, ref_desc, t_ref = describe_timed(view.reference, ref_kps, descriptor, detector, **descriptor_params)
     test_kept, test_desc, t_test = describe_timed(view.test, test_kps, descriptor, detector, **descriptor_params)
     start = time.perf_counter()
-    matches = match_descriptors(test_desc, ref_desc, get_descriptor(descriptor).norm, experiment.get("ratio", 0.7))
+    matches = match_descriptors(test_desc, ref_desc, get_descriptor(descriptor).norm, experiment.get("ratio", 0.7),
+                                mutual=experiment.get("mutual", False))
     t_match = time.perf_counter() - start
     iou = experiment.get("iou_threshold", 0.5)
     matching = metrics.matching_precision(test_kept, ref_kept, matches, view.H, iou)

@@ -67,7 +67,7 @@ def evaluate(shards: dict, job: dict) -> dict:
 
     ``shards``: ``{"synthetic": shard, "pairs": shard}`` (:func:`gtsweep.tasks.make_shard`). ``job``: objective,
     detector, detector_params, descriptor, descriptor_params, selector, selector_params, transforms, settings
-    (min_keypoints, iou_threshold, ratio, pose), seed and cache_dir.
+    (min_keypoints, iou_threshold, ratio, mutual, pose), seed and cache_dir.
     """
     start = time.perf_counter()
     try:
@@ -88,7 +88,7 @@ def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
     pose = job["objective"] == "pose_success"
     detect = Detections(job["detector"], job["detector_params"], job["selector"], job["selector_params"],
                         job.get("cache_dir") if pose else None)
-    experiment = {"name": "pose", "ratio": settings.get("ratio", 0.7),
+    experiment = {"name": "pose", "ratio": settings.get("ratio", 0.7), "mutual": bool(settings.get("mutual")),
                   "iou_threshold": settings["iou_threshold"], "pose": settings.get("pose")}
     rows: dict[str, list[dict]] = {}
     for name, transform_cfg in job["transforms"].items():

@@ -156,6 +156,8 @@ def study_name(target: Target, settings: Mapping, fingerprint: str, seed: int, s
             "detector_params": target.detector_params, "descriptor": target.descriptor}
     if settings["objective"] == "pose_success":
         what.update(ratio=settings.get("ratio"), pose=settings.get("pose"))
+        if settings.get("mutual"):  # only when on, so that earlier studies keep their names
+            what["mutual"] = True
     return f"{target.label}-{settings['objective']}-{config_hash(what)[:10]}"
 
 
@@ -167,7 +169,7 @@ def job(target: Target, settings: Mapping, values: Mapping, seed: int, cache_dir
             "descriptor": target.descriptor, "descriptor_params": tuned if target.group == "descriptor" else {},
             "selector": settings["selector"]["name"], "selector_params": dict(settings["selector"].get("params") or {}),
             "transforms": job_transforms(settings), "seed": seed, "cache_dir": cache_dir,
-            "settings": {k: settings.get(k) for k in ("min_keypoints", "iou_threshold", "ratio", "pose")}}
+            "settings": {k: settings.get(k) for k in ("min_keypoints", "iou_threshold", "ratio", "mutual", "pose")}}
 
 
 # --------------------------------------------------------------------------------------------------- study
