@@ -21,6 +21,7 @@ from gtsweep.detect import DETECTORS
 from gtsweep.errors import GtsweepError
 from gtsweep.paths import PACKAGE_DIR
 from gtsweep.results import summary_table
+from gtsweep.transforms import TRANSFORMS
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
 #: Our learned feature is compared with the survey's learned one.
@@ -176,8 +177,7 @@ def table_detectors(df: pd.DataFrame) -> Table | None:
 
 def table_pairings(df: pd.DataFrame) -> Table | None:
     """Survey Table 6: pairings on synthetic transforms: success, correct matches, precision."""
-    synthetic = {"rotation", "translation", "noise", "gamma"}
-    part = df[df["transform"].isin(synthetic) & df["descriptor"].notna() & (df["status"] == "ok")]
+    part = df[df["transform"].isin(list(TRANSFORMS)) & df["descriptor"].notna() & (df["status"] == "ok")]
     if part.empty:
         return None
     theirs = paper("table6_pairings_synthetic.csv").set_index(["detector", "descriptor"])

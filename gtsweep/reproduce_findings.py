@@ -11,8 +11,9 @@ import math
 import pandas as pd
 
 from gtsweep.detect import DETECTORS
+from gtsweep.transforms import TRANSFORMS
 
-SYNTHETIC = ("rotation", "translation", "noise", "gamma")
+SYNTHETIC = tuple(TRANSFORMS)  # the synthetic transforms
 TIE = 0.005  # the survey prints two decimals
 
 
@@ -60,9 +61,10 @@ def sift_best_on_synthetic(frames):
     means = part[part["transform"].isin(SYNTHETIC)].groupby(["detector", "descriptor"])["pose_success"].mean()
     if ("sift", "sift") not in means:
         return None, ""
-    best = means.idxmax()
-    return bool(means[("sift", "sift")] >= means.max() - TIE), (
-        f"SIFT-SIFT {means[('sift', 'sift')]:.2f}; best {_pair(best)} {means.max():.2f}")
+    sift, tied = means[("sift", "sift")], int((means >= means.max() - TIE).sum())
+    return bool(sift >= means.max() - TIE), (
+        f"SIFT-SIFT {sift:.2f}; best {_pair(means.idxmax())} {means.max():.2f}"
+        + (f" ({tied} of {len(means)} pairings tie for best)" if tied > 1 else ""))
 
 
 def censure_best_incremental(frames):
