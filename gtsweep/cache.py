@@ -9,13 +9,14 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from gtsweep.atomic import write_atomically
 
 
 @lru_cache(maxsize=1)
@@ -81,13 +82,5 @@ class KeypointCache:
         self._memory[key] = (keypoints, n_detected, seconds)
         if self.directory is None:
             return
-        path = self._path(key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez_compressed(f, keypoints=keypoints, n_detected=n_detected, seconds=seconds)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_atomically(self._path(key), lambda f: np.savez_compressed(f, keypoints=keypoints,
+                                                                         n_detected=n_detected, seconds=seconds))

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
+from gtsweep.atomic import write_atomically
 from gtsweep.errors import BadInput, GtsweepError
 from gtsweep.evaluate import stable_seed
 from gtsweep.grid import config_hash, plain
@@ -269,7 +270,6 @@ def write_tuned(path: Path, target: Target, values: Mapping, header: list[str]) 
     """``<name>: {params: ...}`` with a Hydra package header, loadable as ``<group>=[tuned/<name>]``."""
     import yaml
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     node = tuned_node(target, values)
     space = node.pop("search_space", None)
     body = yaml.safe_dump({target.name: node}, sort_keys=False, default_flow_style=False)
@@ -278,7 +278,7 @@ def write_tuned(path: Path, target: Target, values: Mapping, header: list[str]) 
             f"    {yaml.safe_dump({k: v}, default_flow_style=True, sort_keys=False).strip()[1:-1]}\n"
             for k, v in space.items())
     lines = [f"# @package {target.group}", *[f"# {line}" for line in header]]
-    path.write_text("\n".join(lines) + "\n" + body)
+    write_atomically(path, "\n".join(lines) + "\n" + body)  # presets select it: never half-written
     return path
 
 

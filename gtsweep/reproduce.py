@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from gtsweep.atomic import write_atomically
 from gtsweep.paths import PROJECT_DIR
 from gtsweep.report import build_tables, frame, load_summaries
 from gtsweep.reproduce_findings import check_findings
@@ -131,7 +132,7 @@ def write_document(results: list[dict], size: str, docs: Path) -> Path:
         lines += ["", notes.read_text().strip()]
     lines += tables
     path = docs / "REPRODUCTION.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_atomically(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -164,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         r = results[-1]
         print(f"  {r['cells']} cells, {r['wall_s']:.0f} s, peak {r['peak_mb']:.0f} MB, "
               f"cache hit rate {r['cache_hit_rate']:.2f}, {r['mlflow_runs']} MLflow runs", flush=True)
-    record.write_text(json.dumps({"size": args.size, "presets": results}, default=str, indent=1))
+    write_atomically(record, json.dumps({"size": args.size, "presets": results}, default=str, indent=1))
     print(f"wrote {write_document(results, args.size, Path(args.docs))}")
     return 0
 

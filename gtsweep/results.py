@@ -13,29 +13,18 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from gtsweep.atomic import write_atomically
 
 #: Metrics averaged over a cell's rows (survey section 4); missing ones are skipped.
 METRICS = ("repeatability", "ambiguity", "few_keypoints", "n_detected", "n_kp_test", "n_matches", "n_correct",
            "precision", "pose_success", "position_error", "orientation_error", "n_inliers",
            "t_detect", "t_describe", "t_match", "t_pose")
 STEP_KEYS = ("strength", "reference_count")
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _mean(values: pd.Series) -> float:
@@ -87,8 +76,8 @@ class ResultStore:
     def write_cell(self, key: str, summary: dict, rows: pd.DataFrame | None) -> None:
         """Write a cell's rows, then its summary (the completion marker)."""
         if rows is not None:
-            _atomic_write(self.cells_dir / f"{key}.csv", rows.to_csv(index=False))
-        _atomic_write(self.cells_dir / f"{key}.json", json.dumps(_json_safe(summary), indent=1, sort_keys=True))
+            write_atomically(self.cells_dir / f"{key}.csv", rows.to_csv(index=False))
+        write_atomically(self.cells_dir / f"{key}.json", json.dumps(_json_safe(summary), indent=1, sort_keys=True))
 
     def rows(self, key: str) -> pd.DataFrame:
         path = self.cells_dir / f"{key}.csv"
@@ -98,7 +87,7 @@ class ResultStore:
         """``results.csv``: one row per cell with its methods, status and mean metrics."""
         table = summary_table(summaries)
         path = self.directory / "results.csv"
-        _atomic_write(path, table.to_csv(index=False))
+        write_atomically(path, table.to_csv(index=False))
         return path
 
 
