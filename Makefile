@@ -38,7 +38,7 @@ tune: $(STAMP)
 
 # The long run: every survey table preset on the embedded data set (about an hour), docs/REPRODUCTION.md.
 reproduce: $(STAMP)
-	$(BIN)/python -m gtsweep.reproduce --size hour
+	$(BIN)/python -m gtsweep.report.reproduce --size hour
 
 clean:
 	rm -rf .gtsweep_cache outputs multirun

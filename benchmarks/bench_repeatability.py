@@ -1,4 +1,4 @@
-"""Time gtsweep.metrics.repeatability on large keypoint sets.
+"""Time gtsweep.evaluation.metrics.repeatability on large keypoint sets.
 
 1. AGAST without selection (survey Table 2: ~0.18 kp/px² in 1288×964 → 225 000 keypoints of size 7).
 2. 30 000 SIFT-like keypoints with log-uniform sizes 2..100 px.
@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from gtsweep.metrics import repeatability
+from gtsweep.evaluation.metrics import repeatability
 
 W, H_PX = 1288, 964
 

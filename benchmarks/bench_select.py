@@ -9,8 +9,8 @@ import time
 
 import numpy as np
 
-from gtsweep.keypoints import COLUMNS, RESPONSE, X, Y
-from gtsweep.select import select
+from gtsweep.stages.keypoints import COLUMNS, RESPONSE, X, Y
+from gtsweep.stages.select import select
 
 IMAGE_SHAPE = (964, 1288)
 COUNTS = (10_000, 60_000, 225_000)

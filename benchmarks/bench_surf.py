@@ -18,7 +18,7 @@ import numpy as np
 import skimage.data
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from gtsweep.surf import NumpySURF, opencv_surf_available  # noqa: E402
+from gtsweep.stages.surf import NumpySURF, opencv_surf_available  # noqa: E402
 
 SHAPE = (964, 1288)  # rows, cols: the survey's camera resolution
 

@@ -13,15 +13,15 @@ import tempfile
 import time
 from pathlib import Path
 
-from gtsweep.cli import compose_config
+from gtsweep.cli.overrides import compose_config
 from gtsweep.datasets import load_dataset
-from gtsweep.describe import describe, descriptor_params
-from gtsweep.detect import detect
-from gtsweep.grid import build_grid
-from gtsweep.match import match_descriptors
-from gtsweep.pose import estimate_pose
-from gtsweep.select import select_nms
-from gtsweep.sweep import run_sweep
+from gtsweep.orchestration.grid import build_grid
+from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.stages.describe import describe, descriptor_params
+from gtsweep.stages.detect import detect
+from gtsweep.stages.match import match_descriptors
+from gtsweep.stages.pose import estimate_pose
+from gtsweep.stages.select import select_nms
 
 GRID = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,orb,sift]", "selector=[nms]",
         "transform=[incremental,absolute]", "experiment=pose", "mlflow.enabled=false", "runner.progress=false",

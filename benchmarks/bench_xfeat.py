@@ -17,7 +17,7 @@ import cv2
 import skimage.data
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from gtsweep.xfeat import XFeat_create, run_network, to_network_input  # noqa: E402
+from gtsweep.stages.xfeat import XFeat_create, run_network, to_network_input  # noqa: E402
 
 SIZES = ((1288, 964), (640, 480))  # (width, height)
 

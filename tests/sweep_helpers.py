@@ -7,8 +7,9 @@ import sys
 from pathlib import Path
 
 import pandas as pd
-from gtsweep.cli import compose_config  # noqa: F401  (re-exported for the tests)
-from gtsweep.paths import PROJECT_DIR
+
+from gtsweep.cli.overrides import compose_config  # noqa: F401  (re-exported for the tests)
+from gtsweep.core.paths import PROJECT_DIR
 
 #: A tiny embedded data set: two textures, small views, a couple of images and pairs each.
 TINY_DATASET = ["dataset.textures=[gravel,carpet]", "dataset.view_size=[320,240]", "dataset.n_optimisation=1",

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import os
 
+import dataset_fixtures as fx
 import pytest
 
-import dataset_fixtures as fx
+from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.datasets import load_dataset, overlap
-from gtsweep.errors import BadInput, UnknownMethod
 
 POSED = {"n_optimisation": 1, "n_synthetic": 2, "n_incremental": 3, "n_absolute": 2, "absolute_min_gap": 4}
 

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from gtsweep.errors import UnknownMethod
-from gtsweep.match import match_descriptors
+from gtsweep.core.errors import UnknownMethod
+from gtsweep.stages.match import match_descriptors
 
 
 def test_l2_ratio_test_by_hand():

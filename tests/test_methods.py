@@ -1,15 +1,19 @@
 """Every detector x descriptor pairing of the survey runs on a 1288x964 texture image, or is reported NA."""
 import numpy as np
 import pytest
-
-from gtsweep import keypoints as kp
-from gtsweep.describe import DESCRIPTORS, applicability, describe, descriptor_params
-from gtsweep.detect import DETECTORS, detect
-from gtsweep.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
-from gtsweep.paths import CONF_DIR
-from gtsweep.select import select_nms
-
 import yaml
+
+from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
+from gtsweep.core.paths import CONF_DIR
+from gtsweep.stages import keypoints as kp
+from gtsweep.stages.describe import (
+    DESCRIPTORS,
+    applicability,
+    describe,
+    descriptor_params,
+)
+from gtsweep.stages.detect import DETECTORS, detect
+from gtsweep.stages.select import select_nms
 
 # The survey's NA cells (Tables 4 and 5): AKAZE descriptor only on AKAZE keypoints, DAISY needs an orientation,
 # ORB descriptor not on SIFT (nor LIFT; XFeat, our LIFT stand-in, has ORB-compatible keypoints) keypoints.

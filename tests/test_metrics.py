@@ -1,13 +1,21 @@
-"""Tests of gtsweep.metrics; every expected number is worked out by hand in a comment."""
+"""Tests of gtsweep.evaluation.metrics; every expected number is worked out by hand in a comment."""
 import math
 
 import numpy as np
 import pytest
 
-from gtsweep.errors import BadInput
-from gtsweep.metrics import (
-    _max_centre_distance, circle_iou, correct_matches, correspondences, map_keypoints, matching_precision,
-    pose_error, pose_success, repeatability, too_few_keypoints,
+from gtsweep.core.errors import BadInput
+from gtsweep.evaluation.metrics import (
+    _max_centre_distance,
+    circle_iou,
+    correct_matches,
+    correspondences,
+    map_keypoints,
+    matching_precision,
+    pose_error,
+    pose_success,
+    repeatability,
+    too_few_keypoints,
 )
 
 

@@ -9,15 +9,22 @@ import mlflow
 import optuna
 import pytest
 import yaml
-
-from gtsweep import cli
-from gtsweep.errors import BadInput, UnknownMethod
-from gtsweep.grid import build_grid
-from gtsweep.objective import summarize
-from gtsweep.optimize import Target, build_targets, main, open_study, read_settings, tuned_node
-from gtsweep.paths import CONF_DIR
-from gtsweep.search_space import parse_space
 from sweep_helpers import compose_config, run_cli, tiny_overrides
+
+from gtsweep.cli import overrides as cli
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.paths import CONF_DIR
+from gtsweep.optimize.driver import (
+    Target,
+    build_targets,
+    main,
+    open_study,
+    read_settings,
+    tuned_node,
+)
+from gtsweep.optimize.objective import summarize
+from gtsweep.optimize.search_space import parse_space
+from gtsweep.orchestration.grid import build_grid
 
 FAST = ["experiment=optimize", "detector=[fast]", "runner.backend=serial", "experiment.n_startup_trials=2",
         "experiment.transforms.rotation.strengths=[45]", "experiment.transforms.noise.strengths=[20]"]

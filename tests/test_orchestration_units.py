@@ -6,11 +6,12 @@ import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
-from gtsweep import cli
-from gtsweep.cache import KeypointCache, detection_key
-from gtsweep.errors import BadInput, UnknownMethod
-from gtsweep.grid import build_grid
-from gtsweep.results import ResultStore, summarize
+from gtsweep.cli import main as gtsweep_main
+from gtsweep.cli import overrides as cli
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.orchestration.cache import KeypointCache, detection_key
+from gtsweep.orchestration.grid import build_grid
+from gtsweep.orchestration.results import ResultStore, summarize
 
 PARAMS = {"params": {}}
 
@@ -103,7 +104,7 @@ def test_all_expands_to_every_option():
 ])
 def test_bad_overrides_fail_in_one_line(args, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        cli.main(args)
+        gtsweep_main(args)
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1, err

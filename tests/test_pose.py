@@ -1,11 +1,11 @@
-"""Tests of gtsweep.pose (RANSAC similarity / Euclidean estimation)."""
+"""Tests of gtsweep.stages.pose (RANSAC similarity / Euclidean estimation)."""
 import math
 
 import numpy as np
 import pytest
 
-from gtsweep.errors import UnknownMethod
-from gtsweep.pose import estimate_pose
+from gtsweep.core.errors import UnknownMethod
+from gtsweep.stages.pose import estimate_pose
 
 
 def similarity(deg, scale, tx, ty):

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import pytest
-
-from gtsweep.report import build_tables, fmt, main, write_report
-from gtsweep.sweep import run_sweep
 from sweep_helpers import compose_config, tiny_overrides
+
+from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.report.tables import build_tables, fmt, main, write_report
 
 SERIAL = ["runner.backend=serial", "mlflow.enabled=false"]
 

@@ -2,8 +2,8 @@
 import pandas as pd
 import pytest
 
-from gtsweep.report import paper
-from gtsweep.reproduce_findings import FINDINGS, check_findings
+from gtsweep.report.findings import FINDINGS, check_findings
+from gtsweep.report.tables import paper
 
 COLUMNS = ("detector", "selector", "descriptor", "transform", "status", "pose_success", "repeatability",
            "by_reference_count")
@@ -137,9 +137,10 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     """--document-only: REPRODUCTION.md from saved measurements and cells, with paper numbers, findings and notes."""
     import json
 
-    from gtsweep import reproduce
-    from gtsweep.sweep import run_sweep
     from sweep_helpers import compose_config, tiny_overrides
+
+    from gtsweep.orchestration.sweep import run_sweep
+    from gtsweep.report import reproduce
 
     work, docs = tmp_path / "work", tmp_path / "docs"
     output = work / "table4_incremental"

@@ -1,11 +1,18 @@
-"""Tests for gtsweep.select (survey 2.2 / 5.1: NMS, ANMS via SSC, bucketing)."""
+"""Tests for gtsweep.stages.select (survey 2.2 / 5.1: NMS, ANMS via SSC, bucketing)."""
 import numpy as np
 import pytest
 from scipy.spatial.distance import pdist
 
-from gtsweep.errors import BadInput, UnknownMethod
-from gtsweep.keypoints import COLUMNS, RESPONSE, X, Y
-from gtsweep.select import SELECTORS, select, select_anms, select_bucketing, select_nms, select_none
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.stages.keypoints import COLUMNS, RESPONSE, X, Y
+from gtsweep.stages.select import (
+    SELECTORS,
+    select,
+    select_anms,
+    select_bucketing,
+    select_nms,
+    select_none,
+)
 
 SHAPE = (480, 640)  # (height, width)
 

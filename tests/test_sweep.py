@@ -9,10 +9,16 @@ import sys
 import time
 
 import pytest
+from sweep_helpers import (
+    assert_same_cells,
+    cli_env,
+    compose_config,
+    run_cli,
+    tiny_overrides,
+)
 
-from gtsweep import tasks
-from gtsweep.sweep import run_sweep
-from sweep_helpers import assert_same_cells, cli_env, compose_config, run_cli, tiny_overrides
+from gtsweep.orchestration import tasks
+from gtsweep.orchestration.sweep import run_sweep
 
 SERIAL = "runner.backend=serial"
 

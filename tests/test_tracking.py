@@ -13,11 +13,11 @@ import urllib.request
 
 import mlflow
 import pytest
-
-from gtsweep.cache import library_versions
-from gtsweep.sweep import run_sweep
-from gtsweep.tracking import SweepTracker, flatten, step_scale
 from sweep_helpers import compose_config, tiny_overrides
+
+from gtsweep.orchestration.cache import library_versions
+from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.tracking.sweep import SweepTracker, flatten, step_scale
 
 GRID = ["detector=[akaze,censure]", "descriptor=[akaze,brief]", "selector=[nms]",
         "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]

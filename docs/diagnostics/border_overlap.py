@@ -11,9 +11,9 @@ import argparse
 
 import numpy as np
 
-from gtsweep.cli import compose_config
+from gtsweep.cli.overrides import compose_config
 from gtsweep.datasets import load_dataset
-from gtsweep.reproduce import SIZES
+from gtsweep.report.reproduce import SIZES
 
 
 def common_area(H: np.ndarray, width: int, height: int, border: int, step: int = 2) -> float:

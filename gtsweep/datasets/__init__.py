@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from typing import Callable, Mapping
 
+from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.datasets import csvposes, folder, hdground, microgps, synthetic
 from gtsweep.datasets.core import PAIR_KINDS, SPLITS, Dataset, Pair, Sample, read_gray
 from gtsweep.datasets.geometry import overlap, rotation_deg
 from gtsweep.datasets.options import plain
-from gtsweep.errors import BadInput, UnknownMethod
 
 DATASETS: dict[str, Callable[[Mapping], Dataset]] = {
     "synthetic": synthetic.load,

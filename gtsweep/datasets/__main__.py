@@ -8,9 +8,9 @@ import sys
 
 import numpy as np
 
+from gtsweep.core.errors import GtsweepError
+from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import load_dataset, overlap, rotation_deg, synthetic
-from gtsweep.errors import GtsweepError
-from gtsweep.paths import CONF_DIR
 
 #: Survey section 5.2 (Micro-GPS): overlap mean / min, rotation mean.
 SURVEY = {"incremental": (0.227, 0.017, 3.0), "absolute": (0.437, None, 120.0)}

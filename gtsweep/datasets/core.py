@@ -10,8 +10,7 @@ from typing import Iterable, Mapping
 import cv2
 import numpy as np
 
-from gtsweep.errors import BadInput, UnknownMethod
-
+from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.datasets import geometry
 
 SPLITS = ("optimisation", "synthetic")

@@ -12,8 +12,7 @@ import csv
 from pathlib import Path
 from typing import Mapping
 
-from gtsweep.errors import BadInput
-
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset
 from gtsweep.datasets.geometry import similarity_pose

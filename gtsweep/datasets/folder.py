@@ -9,8 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from gtsweep.errors import BadInput
-
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset, Sample, content_fingerprint, read_gray
 from gtsweep.datasets.posefiles import Problems

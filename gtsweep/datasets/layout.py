@@ -18,8 +18,7 @@ from typing import Mapping
 import numpy as np
 from scipy import stats
 
-from gtsweep.errors import BadInput
-
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import geometry
 
 #: Pixels kept between a footprint and the floor's edge (room for the interpolation kernel).

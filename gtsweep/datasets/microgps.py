@@ -7,8 +7,7 @@ from __future__ import annotations
 
 from typing import Mapping
 
-from gtsweep.errors import BadInput
-
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset
 from gtsweep.datasets.pairing import POSED_DEFAULTS, posed_dataset

@@ -4,7 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from gtsweep.errors import BadInput
+from gtsweep.core import config
+from gtsweep.core.errors import BadInput
 
 #: Keys every loader accepts.
 COMMON = {"loader": None, "root": None, "skip_bad": False}
@@ -12,19 +13,7 @@ COMMON = {"loader": None, "root": None, "skip_bad": False}
 
 def plain(cfg: Mapping) -> dict:
     """A plain dict from a DictConfig or mapping; a missing mandatory value (``???``) raises BadInput."""
-    try:
-        from omegaconf import DictConfig, OmegaConf
-        from omegaconf.errors import MissingMandatoryValue
-    except ImportError:  # pragma: no cover - hydra-core is a dependency
-        return dict(cfg)
-    if isinstance(cfg, DictConfig):
-        try:
-            return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
-        except MissingMandatoryValue as error:
-            key = str(getattr(error, "full_key", "") or "root").removeprefix("dataset.")
-            raise BadInput(f"dataset.{key} is required (give it on the command line, e.g. dataset.{key}=...)") \
-                from None
-    return dict(cfg)
+    return dict(config.plain(cfg, "dataset"))
 
 
 def read(cfg: Mapping, defaults: Mapping[str, Any], loader: str) -> dict:

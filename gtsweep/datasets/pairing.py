@@ -15,8 +15,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from gtsweep.errors import BadInput
-
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import geometry
 from gtsweep.datasets.core import Dataset, Pair, Sample, content_fingerprint, read_gray
 from gtsweep.datasets.posefiles import Entry, Problems

@@ -14,7 +14,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from gtsweep.errors import BadInput
+from gtsweep.core.errors import BadInput
 
 
 class Problems:

@@ -20,9 +20,8 @@ from typing import Mapping
 import cv2
 import numpy as np
 
-from gtsweep.errors import BadInput, UnknownMethod
-from gtsweep.paths import DEFAULT_CACHE_DIR
-
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.paths import DEFAULT_CACHE_DIR
 from gtsweep.datasets import floors, layout, photometric
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset, Pair, Sample, fingerprint_of

@@ -1,0 +1,106 @@
+"""The Hydra task function: one job = one grid, evaluated by :func:`gtsweep.orchestration.sweep.run_sweep`."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import hydra
+import pandas as pd
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
+from gtsweep.core.errors import GtsweepError
+from gtsweep.core.paths import CONF_DIR
+from gtsweep.orchestration.cache import library_versions
+from gtsweep.orchestration.results import summary_table
+from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
+from gtsweep.report.tables import Table, write_report
+
+#: The metric shown in the terminal table, per experiment.
+HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success"}
+
+
+def hydra_main() -> None:
+    """Run the Hydra application on ``sys.argv`` (already checked and expanded by :func:`gtsweep.cli.main`)."""
+    _app()
+
+
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
+def _app(cfg: DictConfig) -> None:
+    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:]}))
+    if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver
+        from gtsweep.optimize.driver import main as optimize_main
+
+        try:
+            optimize_main(cfg, output_dir)
+        except GtsweepError as e:
+            fail(e)
+        return
+    tracker = None
+    try:
+        hooks, on_start = (), None
+        if cfg.mlflow.enabled:
+            from gtsweep.tracking.sweep import SweepTracker
+
+            tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True),
+                                   run_name=f"{output_dir.parent.name}/{output_dir.name}")
+            hooks = (tracker.log_cell,)
+            on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
+        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start)
+        tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
+        if tracker is not None:
+            tracker.end(outcome, artifacts=files)
+    except GtsweepError as e:
+        if tracker is not None:
+            tracker.abort(str(e))
+        fail(e)
+    print(format_outcome(outcome, tables))
+    print(f"report: {len(files)} tables and plots in {output_dir / 'report'}")
+    if tracker is not None:
+        print(f"MLflow: parent run {tracker.parent_id} in {tracker.uri} (make ui, then open http://127.0.0.1:5000)")
+    if outcome.failed:
+        print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)
+        sys.exit(1)
+
+
+def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
+    """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns."""
+    table = summary_table(outcome.summaries)
+    metric = HEADLINE[outcome.grid.experiment["name"]]
+    columns = "selector" if outcome.grid.experiment["name"] == "detection" else "descriptor"
+    tables = {}
+    for transform, part in table.groupby("transform", sort=False):
+        values = part[metric] if metric in part else pd.Series(float("nan"), index=part.index)
+        shown = values.map(lambda v: "NA" if pd.isna(v) else f"{v:.2f}").where(part["status"] == "ok", "NA")
+        pivot = part.assign(value=shown).pivot_table(index="detector", columns=columns, values="value",
+                                                     aggfunc="first", sort=False)
+        tables[f"{metric} ({transform})"] = pivot
+    return tables
+
+
+def format_outcome(outcome: SweepOutcome, tables: list[Table] = ()) -> str:
+    """Totals, then the survey's tables that the sweep fills (else the headline metric per transform)."""
+    statuses = pd.Series([s["status"] for s in outcome.summaries])
+    lines = [
+        f"gtsweep: {len(outcome.summaries)} cells ({(statuses == 'ok').sum()} evaluated, "
+        f"{(statuses == 'na').sum()} not applicable, {(statuses == 'error').sum()} failed, "
+        f"{outcome.resumed} kept from an earlier run) in {outcome.seconds:.1f} s",
+        f"keypoint cache: {outcome.stats.cache_hits} hits, {outcome.stats.cache_misses} misses "
+        f"(= detector calls)",
+        f"results: {outcome.table}",
+    ]
+    if outcome.skipped_items:
+        lines.append(f"data set: {len(outcome.skipped_items)} bad item(s) skipped (dataset.skip_bad=true); "
+                     f"listed in {outcome.output_dir / 'run.json'}")
+    if tables:
+        for table in tables:
+            lines += ["", table.markdown()]
+        lines += ["", "cells read 'ours (paper)'; NA = the pairing cannot be evaluated"]
+    else:
+        for title, pivot in headline_tables(outcome).items():
+            lines += ["", title, pivot.to_string()]
+    return "\n".join(lines)

@@ -1,0 +1,116 @@
+"""One sweep from a composed config: build the grid, load the data set, skip finished cells, run, write results.
+
+This is the driver. It alone writes result files (and, through ``hooks``, to MLflow); workers return plain rows.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping
+
+import pandas as pd
+
+from gtsweep.core.config import plain
+from gtsweep.datasets import load_dataset
+from gtsweep.orchestration.grid import Cell, Grid, build_grid
+from gtsweep.orchestration.results import ResultStore, summarize
+from gtsweep.orchestration.runner import RunStats, load_shards, plan, run
+
+#: Called as ``hook(cell, summary, rows)`` for every cell as it finishes, and for cells kept from an earlier run
+#: (rows None for those and for NA cells).
+CellHook = Callable[[Cell, dict, "pd.DataFrame | None"], None]
+
+
+@dataclass
+class SweepOutcome:
+    output_dir: Path
+    grid: Grid
+    summaries: list[dict]
+    stats: RunStats
+    resumed: int  # cells found complete from an earlier run
+    dataset_fingerprint: str
+    seconds: float
+    table: Path | None = None
+    failed: list[str] = field(default_factory=list)
+    skipped_items: list[str] = field(default_factory=list)  # bad data items skipped under dataset.skip_bad
+
+
+def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping) -> dict:
+    """The summary written for a cell: methods, status (ok, na, error), reason and aggregate metrics."""
+    summary = {"key": cell.key, "methods": cell.methods, "hash": cell_hash}
+    if "rows" in outcome:
+        return {**summary, "status": "ok", **summarize(outcome["rows"])}
+    if "na" in outcome:
+        return {**summary, "status": "na", "reason": outcome["na"]}
+    return {**summary, "status": "error", "reason": outcome["error"]}
+
+
+def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
+              on_start: Callable[[Grid, str], None] | None = None) -> SweepOutcome:
+    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete there (same config) are kept."""
+    start = time.perf_counter()
+    grid = build_grid(cfg)
+    dataset = load_dataset(cfg["dataset"])
+    fingerprint = dataset.fingerprint()
+    seed = int(cfg.get("seed", 0))
+    store = ResultStore(output_dir)
+    if on_start is not None:
+        on_start(grid, fingerprint)
+    summaries: dict[str, dict] = {}
+    hashes = {cell.key: grid.cell_hash(cell, fingerprint, seed) for cell in grid.cells}
+
+    def finish(cell: Cell, outcome: Mapping) -> None:
+        summary = cell_summary(cell, hashes[cell.key], outcome)
+        rows = outcome.get("rows")
+        store.write_cell(cell.key, summary, rows)
+        summaries[cell.key] = summary
+        for hook in hooks:
+            hook(cell, summary, rows)
+
+    pending, not_applicable, resumed = set(), [], 0
+    for cell in grid.cells:
+        done = store.complete(cell.key, hashes[cell.key])
+        if done is not None:
+            summaries[cell.key], resumed = done, resumed + 1
+            for hook in hooks:  # hooks skip what they already have (e.g. cells logged before a kill)
+                hook(cell, done, None)
+        elif cell.na_reason is not None:
+            not_applicable.append(cell)
+        else:
+            pending.add(cell.key)
+    runner_cfg = plain(cfg.get("runner")) or {}
+    # Load (and so check) every image before the first result file is written: bad data stops the run clean.
+    shards = load_shards(dataset, grid, int(runner_cfg.get("shard_size", 4))) if pending else {}
+    for cell in not_applicable:
+        finish(cell, {"na": cell.na_reason})
+    stats = RunStats()
+    if pending:
+        jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
+        cache_cfg = plain(cfg.get("cache")) or {}
+        cache_dir = str(Path(cache_cfg["dir"]).resolve()) if cache_cfg.get("enabled", True) else None
+        stats = run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish)
+    ordered = [summaries[cell.key] for cell in grid.cells]
+    outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
+                           time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
+                           skipped_items=list(getattr(dataset, "skipped", [])))
+    outcome.table = store.write_table(ordered)
+    _write_run_record(outcome, dataset)
+    return outcome
+
+
+def _write_run_record(outcome: SweepOutcome, dataset) -> None:
+    record = {
+        "dataset": dataset.name,
+        "dataset_fingerprint": outcome.dataset_fingerprint,
+        "skipped_items": outcome.skipped_items,
+        "cells": len(outcome.summaries),
+        "resumed_cells": outcome.resumed,
+        "cache_hits": outcome.stats.cache_hits,
+        "cache_misses": outcome.stats.cache_misses,
+        "detection_tasks": outcome.stats.detection_tasks,
+        "pairing_tasks": outcome.stats.pairing_tasks,
+        "seconds": round(outcome.seconds, 3),
+    }
+    (outcome.output_dir / "run.json").write_text(json.dumps(record, indent=1))

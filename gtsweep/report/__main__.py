@@ -1,0 +1,5 @@
+import sys
+
+from gtsweep.report.tables import main
+
+sys.exit(main())

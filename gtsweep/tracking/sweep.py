@@ -1,0 +1,212 @@
+"""MLflow tracking: one parent run per sweep, one child run per cell, written by the driver alone.
+
+Several processes writing one sqlite store at once corrupt it, so workers return plain rows and only the driver
+logs, with ``MlflowClient.log_batch`` (about 4x faster than one call per metric). The default store is
+``sqlite:///<cwd>/mlflow.db`` (MLflow 3's default); ``mlflow.tracking_uri`` or ``MLFLOW_TRACKING_URI`` selects a
+server. A resumed sweep reuses its parent run and logs only cells that have no child run yet.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Mapping
+
+from gtsweep.core.errors import BadInput
+
+PARENT_RECORD = "mlflow.json"
+CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
+
+
+def tracking_uri(cfg: Mapping | None) -> str:
+    """The configured store: ``mlflow.tracking_uri``, else ``$MLFLOW_TRACKING_URI``, else ./mlflow.db (absolute)."""
+    uri = (cfg or {}).get("tracking_uri") or os.environ.get("MLFLOW_TRACKING_URI")
+    return uri or f"sqlite:///{Path.cwd().resolve() / 'mlflow.db'}"
+
+
+def flatten(value, prefix: str = "") -> dict[str, str]:
+    """A nested config as MLflow params: ``{"detector.params.nfeatures": "0", ...}``."""
+    if isinstance(value, Mapping):
+        out = {}
+        for key, inner in value.items():
+            out.update(flatten(inner, f"{prefix}.{key}" if prefix else str(key)))
+        return out
+    return {prefix: json.dumps(value) if isinstance(value, (list, tuple)) else str(value)}
+
+
+def step_scale(values) -> int:
+    """Metric steps must be integers: strengths are used as they are when integral, else times 100."""
+    return 1 if all(float(v).is_integer() for v in values) else 100
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parent)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+class SweepTracker:
+    """Logs a sweep to MLflow. Use :meth:`start`, then :meth:`log_cell` per cell (a sweep hook), then :meth:`end`."""
+
+    def __init__(self, cfg: Mapping | None, output_dir: str | Path, config_yaml: str, run_name: str):
+        import mlflow
+        from mlflow.tracking import MlflowClient
+
+        for name in ("mlflow", "alembic"):  # their INFO lines (store creation, migrations) are noise here
+            logging.getLogger(name).setLevel(logging.WARNING)
+        self.uri = tracking_uri(cfg)
+        self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
+        self.output_dir = Path(output_dir)
+        self.config_yaml = config_yaml
+        self.run_name = run_name
+        mlflow.set_tracking_uri(self.uri)
+        self.client = MlflowClient(self.uri)
+        self.parent_id: str | None = None
+        self.logged: set[tuple[str, str]] = set()  # (cell key, config hash) already logged under the parent
+
+    def start(self, grid, dataset_fingerprint: str, versions: Mapping) -> None:
+        """Create (or, on resume, reopen) the parent run."""
+        try:
+            experiment = self.client.get_experiment_by_name(self.experiment_name)
+            experiment_id = experiment.experiment_id if experiment else \
+                self.client.create_experiment(self.experiment_name)
+        except Exception as e:  # unreachable server, bad URI: one line, before any work
+            raise BadInput(f"cannot use the MLflow store '{self.uri}': {str(e).splitlines()[0]}") from None
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        record = self.output_dir / PARENT_RECORD
+        if record.exists():
+            self.parent_id = json.loads(record.read_text())["parent_run_id"]
+            self.client.update_run(self.parent_id, status="RUNNING")
+            self.logged = self._logged_children(experiment_id)
+        else:
+            tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.git_commit": git_commit(),
+                    "gtsweep.dataset_fingerprint": dataset_fingerprint, "gtsweep.output_dir": str(self.output_dir),
+                    "gtsweep.experiment": grid.experiment["name"],
+                    **{f"gtsweep.version.{k}": str(v) for k, v in versions.items()}}
+            run = self.client.create_run(experiment_id, run_name=self.run_name, tags=tags)
+            self.parent_id = run.info.run_id
+            self.client.log_text(self.parent_id, self.config_yaml, "config.yaml")
+            record.write_text(json.dumps({"parent_run_id": self.parent_id, "tracking_uri": self.uri}))
+        self.experiment_id = experiment_id
+        self.grid = grid
+
+    def _logged_children(self, experiment_id: str) -> set[tuple[str, str]]:
+        """(cell, hash) of the child runs already under the parent (a resumed sweep logs no duplicates)."""
+        runs = self.client.search_runs([experiment_id], f"tags.mlflow.parentRunId = '{self.parent_id}'",
+                                       max_results=50000)
+        return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs}
+
+    def log_cell(self, cell, summary: Mapping, rows=None) -> None:
+        """One child run: the cell's full method configuration, every metric, steps per strength, NA reason."""
+        from mlflow.entities import Metric, Param, RunTag
+
+        if (cell.key, summary.get("hash")) in self.logged:
+            return
+        config = self.grid.cell_config(cell, "", 0)
+        params = {**flatten({k: v for k, v in cell.methods.items() if v is not None}),
+                  **flatten({"detector": config["detector"], "selector": config["selector"],
+                             "descriptor": config["descriptor"], "transform": config["transform"],
+                             "experiment": config["experiment"]})}
+        tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
+                STATUS_TAG: summary["status"]}
+        if summary.get("reason"):
+            tags[REASON_TAG] = str(summary["reason"])[:5000]
+        run = self.client.create_run(self.experiment_id, run_name=cell.key, tags=tags)
+        now = int(time.time() * 1000)
+        # undefined values (e.g. ambiguity when no keypoint repeats) are logged as NaN: every metric is present
+        metrics = [Metric(k, _number(v), now, 0) for k, v in (summary.get("metrics") or {}).items()]
+        metrics += self._step_metrics(summary, now)
+        for step_key in ("strength", "reference_count"):
+            if summary.get(f"by_{step_key}"):
+                tags[f"gtsweep.step_scale.{step_key}"] = str(step_scale([float(v) for v in summary[f"by_{step_key}"]]))
+        self.client.log_batch(run.info.run_id, metrics=metrics,
+                              params=[Param(k[:250], v[:6000]) for k, v in params.items()],
+                              tags=[RunTag(k, v) for k, v in tags.items() if k != "mlflow.parentRunId"])
+        self.client.set_terminated(run.info.run_id, "FINISHED" if summary["status"] != "error" else "FAILED")
+        self.logged.add((cell.key, summary.get("hash")))
+
+    @staticmethod
+    def _step_metrics(summary: Mapping, now: int) -> list:
+        """``<metric>_vs_strength`` / ``_vs_reference_count`` series; steps are strength x :func:`step_scale`."""
+        from mlflow.entities import Metric
+
+        metrics = []
+        for step_key in ("strength", "reference_count"):
+            by_step = summary.get(f"by_{step_key}") or {}
+            scale = step_scale([float(v) for v in by_step]) if by_step else 1
+            for value, values in by_step.items():
+                step = int(round(float(value) * scale))
+                metrics += [Metric(f"{name}_vs_{step_key}", float(v), now, step)
+                            for name, v in values.items() if _finite(v)]
+        return metrics
+
+    def abort(self, reason: str) -> None:
+        """Close the parent run as FAILED with the reason (the sweep stopped on bad input)."""
+        if self.parent_id is not None:
+            self.client.set_tag(self.parent_id, REASON_TAG, reason[:5000])
+            self.client.set_terminated(self.parent_id, "FAILED")
+
+    def end(self, outcome, artifacts: list[Path] = ()) -> None:
+        """Log the sweep's totals and files on the parent run and close it."""
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        totals = {"cells": len(outcome.summaries), "cache_hits": outcome.stats.cache_hits,
+                  "cache_misses": outcome.stats.cache_misses, "wall_time_s": outcome.seconds,
+                  "resumed_cells": outcome.resumed}
+        self.client.log_batch(self.parent_id, metrics=[Metric(k, float(v), now, 0) for k, v in totals.items()])
+        for path in [outcome.table, *artifacts]:
+            if path is not None and Path(path).exists():
+                self.client.log_artifact(self.parent_id, str(path))
+        self.client.set_terminated(self.parent_id, "FAILED" if outcome.failed else "FINISHED")
+
+
+def _finite(value) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _number(value) -> float:
+    """A metric value for MLflow: None (NaN after a JSON round trip) becomes NaN."""
+    return math.nan if value is None else float(value)
+
+
+def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[dict]:
+    """Cell summaries rebuilt from a sweep's MLflow child runs (the report's other source)."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri(None) if uri is None else uri)
+    try:
+        parent = client.get_run(parent_run_id)
+    except Exception as e:
+        raise BadInput(f"no MLflow run '{parent_run_id}' in '{client.tracking_uri}': {str(e).splitlines()[0]}") \
+            from None
+    runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",
+                              max_results=50000)
+    summaries = []
+    for run in runs:
+        params, tags = run.data.params, run.data.tags
+        methods = {k: params.get(k) for k in ("detector", "selector", "descriptor", "transform")}
+        summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
+                   "reason": tags.get(REASON_TAG),
+                   "metrics": {k: v for k, v in run.data.metrics.items() if "_vs_" not in k}}
+        for step_key in ("strength", "reference_count"):
+            series = [k for k in run.data.metrics if k.endswith(f"_vs_{step_key}")]
+            steps: dict[str, dict] = {}
+            for name in series:
+                history = client.get_metric_history(run.info.run_id, name)
+                scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
+                scale = float(tags.get(f"gtsweep.step_scale.{step_key}", scale))
+                for m in history:
+                    steps.setdefault(repr(m.step / scale), {})[name[: -len(f"_vs_{step_key}")]] = m.value
+            if steps:
+                summary[f"by_{step_key}"] = steps
+        summaries.append(summary)
+    return sorted(summaries, key=lambda s: s["key"] or "")
