@@ -1,0 +1,106 @@
+"""The house rules, checked from the source: layers import only downward, no import cycle, no module over ~400 lines.
+
+Layers, lowest first (README, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` < ``orchestration`` <
+``tracking`` < ``report`` < ``optimize`` < ``cli``. The science (core, stages, evaluation, datasets) never imports
+the orchestration, tracking, report, optimisation or command-line layers. Lazy (function-level) imports count.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "gtsweep"
+LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "optimize", "cli"]
+SCIENCE = {"core", "stages", "evaluation", "datasets"}
+MAX_LINES = 400
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for p in PACKAGE.rglob("*.py")}
+
+
+def _imports(path: Path, modules) -> set[str]:
+    """The gtsweep modules ``path`` imports (``from a import b`` counts ``a.b`` when that is a module)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        names = []
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names = [node.module] + [f"{node.module}.{alias.name}" for alias in node.names]
+        elif isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        found |= {name for name in names if name in modules}
+    return found
+
+
+def _layer(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_every_module_sits_in_a_layer():
+    loose = [m for m in _modules() if m.count(".") >= 1 and _layer(m) is None and m != "gtsweep.__main__"]
+    assert loose == [], f"modules outside the layer subpackages: {loose}"
+
+
+def test_layers_import_only_downward():
+    modules = _modules()
+    upward = []
+    for module, path in modules.items():
+        own = _layer(module)
+        if own is None:
+            continue
+        for imported in _imports(path, modules):
+            other = _layer(imported)
+            if other is not None and LAYERS.index(other) > LAYERS.index(own):
+                upward.append(f"{module} -> {imported}")
+    assert upward == [], "imports against the layers:\n" + "\n".join(sorted(upward))
+
+
+def test_science_never_imports_orchestration_tracking_or_cli():
+    modules = _modules()
+    bad = [f"{m} -> {i}" for m, p in modules.items() if _layer(m) in SCIENCE
+           for i in _imports(p, modules) if _layer(i) not in SCIENCE and _layer(i) is not None]
+    assert bad == []
+
+
+def test_no_import_cycle():
+    modules = _modules()
+    edges = {m: {i for i in _imports(p, modules) if i != m} for m, p in modules.items()}
+    # packages' __init__ re-exports are not cycles of code; leave them out as the shared tool does
+    edges = {m: {i for i in e if modules[i].name != "__init__.py"} for m, e in edges.items()
+             if modules[m].name != "__init__.py"}
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for nxt in edges.get(node, ()):
+            if state.get(nxt) == 1:
+                cycles.append(" -> ".join(stack[stack.index(nxt):] + [nxt]))
+            elif nxt not in state:
+                visit(nxt, stack + [nxt])
+        state[node] = 2
+
+    for module in sorted(edges):
+        if module not in state:
+            visit(module, [module])
+    assert cycles == []
+
+
+@pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_module_size(path):
+    assert len(path.read_text().splitlines()) <= MAX_LINES
+
+
+def test_no_module_level_run_state():
+    """No ``global`` statement anywhere: run information travels in arguments, not module globals."""
+    offenders = [str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
+                 if any(isinstance(n, ast.Global) for n in ast.walk(ast.parse(p.read_text())))]
+    assert offenders == []
