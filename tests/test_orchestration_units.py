@@ -76,7 +76,7 @@ def test_cache_round_trip_and_counts(tmp_path):
 def test_result_store_marks_complete_cells(tmp_path):
     store = ResultStore(tmp_path)
     rows = pd.DataFrame({"image": ["a", "b"], "strength": [0.0, 90.0], "pose_success": [1.0, 0.0]})
-    summary = {"key": "k", "hash": "h1", "status": "ok", "methods": {}, **summarize(rows)}
+    summary = {"key": "k", "hash": "h1", "status": "ok", "methods": {}, **summarize(rows, "pose")}
     assert summary["metrics"]["pose_success"] == 0.5
     assert summary["by_strength"] == {"0.0": {"pose_success": 1.0}, "90.0": {"pose_success": 0.0}}
     store.write_cell("k", summary, rows)

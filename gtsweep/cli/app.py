@@ -13,13 +13,11 @@ from omegaconf import DictConfig, OmegaConf
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import CONF_DIR
+from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summary_table
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
 from gtsweep.report.tables import Table, write_report
-
-#: The metric shown in the terminal table, per experiment.
-HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success"}
 
 
 def hydra_main() -> None:
@@ -70,7 +68,7 @@ def _app(cfg: DictConfig) -> None:
 def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
     """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns."""
     table = summary_table(outcome.summaries)
-    metric = HEADLINE[outcome.grid.experiment["name"]]
+    metric = schema.headline(outcome.grid.experiment["name"])
     columns = "selector" if outcome.grid.experiment["name"] == "detection" else "descriptor"
     tables = {}
     for transform, part in table.groupby("transform", sort=False):

@@ -3,7 +3,8 @@
 :func:`detect_and_select` runs detection then selection on one image; :func:`detection_metrics` scores the
 keypoints of a reference/test pair (repeatability, ambiguity, < N KPs); :func:`pairing_metrics` describes, matches
 and estimates the pose for one detector-descriptor pairing. Everything is plain data in, plain dicts out, so the
-orchestration (grid, Ray, cache, tracking) can stay elsewhere.
+orchestration (grid, Ray, cache, tracking) can stay elsewhere. Every key of the returned dicts is a column declared
+in :mod:`gtsweep.evaluation.schema` (which says how a cell aggregates it); an undeclared one stops the sweep.
 """
 from __future__ import annotations
 

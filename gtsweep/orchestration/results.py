@@ -15,35 +15,31 @@ import math
 import os
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from gtsweep.core.atomic import write_atomically
-
-#: Metrics averaged over a cell's rows (survey section 4); missing ones are skipped.
-METRICS = ("repeatability", "ambiguity", "few_keypoints", "n_detected", "n_kp_test", "n_matches", "n_correct",
-           "precision", "pose_success", "position_error", "orientation_error", "n_inliers",
-           "t_detect", "t_describe", "t_match", "t_pose")
-STEP_KEYS = ("strength", "reference_count")
+from gtsweep.evaluation import schema
 
 
-def _mean(values: pd.Series) -> float:
-    values = pd.to_numeric(values, errors="coerce").astype(float)
-    values = values[np.isfinite(values)]
-    return float(values.mean()) if len(values) else math.nan
+def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
+    """A cell's aggregates by the schema (:mod:`gtsweep.evaluation.schema`), overall and per step value.
 
+    Derived metrics are computed first; a column the schema does not declare for ``experiment`` (None: any
+    experiment) raises :class:`~gtsweep.core.errors.GtsweepError`. Declared metrics absent from ``rows`` are skipped.
+    """
+    rows = schema.with_derived(rows, experiment)
+    schema.check_columns(rows.columns, experiment)
+    metrics = [m for m in schema.metrics_of(experiment) if schema.aggregable(m, rows)]
 
-def summarize(rows: pd.DataFrame) -> dict:
-    """Means of every metric over a cell's rows, plus the means per step (transform strength, reference count)."""
-    summary = {"n_rows": int(len(rows)),
-               "metrics": {m: _mean(rows[m]) for m in METRICS if m in rows}}
+    def aggregates(part: pd.DataFrame) -> dict:
+        return {m.name: schema.aggregate(m, part) for m in metrics}
+
+    summary = {"n_rows": int(len(rows)), "metrics": aggregates(rows)}
     summary["n_images"] = int(rows["image"].nunique()) if "image" in rows else 0
-    for step in STEP_KEYS:
+    for step in schema.STEP_KEYS:
         if step in rows and rows[step].notna().any():
-            summary[f"by_{step}"] = {
-                repr(float(value)): {m: _mean(group[m]) for m in METRICS if m in group}
-                for value, group in rows.groupby(step, sort=True)
-            }
+            summary[f"by_{step}"] = {repr(float(value)): aggregates(group)
+                                     for value, group in rows.groupby(step, sort=True)}
     return summary
 
 
@@ -74,8 +70,9 @@ class ResultStore:
         return summary if summary.get("hash") == cell_hash else None
 
     def write_cell(self, key: str, summary: dict, rows: pd.DataFrame | None) -> None:
-        """Write a cell's rows, then its summary (the completion marker)."""
+        """Write a cell's rows (with the derived metrics), then its summary (the completion marker)."""
         if rows is not None:
+            rows = schema.with_derived(rows, summary.get("experiment"))
             write_atomically(self.cells_dir / f"{key}.csv", rows.to_csv(index=False))
         write_atomically(self.cells_dir / f"{key}.json", json.dumps(_json_safe(summary), indent=1, sort_keys=True))
 
@@ -92,10 +89,12 @@ class ResultStore:
 
 
 def summary_table(summaries: list[dict]) -> pd.DataFrame:
-    """One row per cell: detector, selector, descriptor, transform, status, reason and the mean metrics."""
-    records = []
-    for s in summaries:
-        record = {**s["methods"], "status": s["status"], "reason": s.get("reason") or ""}
-        record.update({m: v for m, v in (s.get("metrics") or {}).items()})
-        records.append(record)
-    return pd.DataFrame.from_records(records)
+    """One row per cell: its methods, status, reason, then its metrics in schema order.
+
+    Metrics no longer declared (a summary written by an older version) follow, sorted.
+    """
+    records = [{**s["methods"], "status": s["status"], "reason": s.get("reason") or "", **(s.get("metrics") or {})}
+               for s in summaries]
+    table = pd.DataFrame.from_records(records)
+    measured = {m for s in summaries for m in s.get("metrics") or {}}
+    return table[[c for c in table.columns if c not in measured] + schema.ordered(measured)]

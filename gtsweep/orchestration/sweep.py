@@ -37,11 +37,11 @@ class SweepOutcome:
     skipped_items: list[str] = field(default_factory=list)  # bad data items skipped under dataset.skip_bad
 
 
-def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping) -> dict:
-    """The summary written for a cell: methods, status (ok, na, error), reason and aggregate metrics."""
-    summary = {"key": cell.key, "methods": cell.methods, "hash": cell_hash}
+def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) -> dict:
+    """The summary written for a cell: methods, experiment, status (ok, na, error), reason and aggregate metrics."""
+    summary = {"key": cell.key, "methods": cell.methods, "hash": cell_hash, "experiment": experiment}
     if "rows" in outcome:
-        return {**summary, "status": "ok", **summarize(outcome["rows"])}
+        return {**summary, "status": "ok", **summarize(outcome["rows"], experiment)}
     if "na" in outcome:
         return {**summary, "status": "na", "reason": outcome["na"]}
     return {**summary, "status": "error", "reason": outcome["error"]}
@@ -62,7 +62,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     hashes = {cell.key: grid.cell_hash(cell, fingerprint, seed) for cell in grid.cells}
 
     def finish(cell: Cell, outcome: Mapping) -> None:
-        summary = cell_summary(cell, hashes[cell.key], outcome)
+        summary = cell_summary(cell, hashes[cell.key], outcome, grid.experiment["name"])
         rows = outcome.get("rows")
         store.write_cell(cell.key, summary, rows)
         summaries[cell.key] = summary

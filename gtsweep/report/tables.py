@@ -3,7 +3,8 @@
 Each table is built from whatever cells a sweep has (its result files, or its MLflow runs) and printed in the
 paper's layout: a cell reads ``ours (paper)``; ``NA`` marks a pairing that cannot be evaluated. Detection metrics
 are averaged with equal weight per transform type, as in the survey (section 5). Tables are written as Markdown,
-LaTeX and CSV, next to the plots of :mod:`gtsweep.report.plots`.
+LaTeX and CSV, next to the plots of :mod:`gtsweep.report.plots`; ``cells`` lists every cell with each metric
+that :mod:`gtsweep.evaluation.schema` marks as reported.
 """
 from __future__ import annotations
 
@@ -18,11 +19,15 @@ import pandas as pd
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import PACKAGE_DIR
+from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.results import summary_table
 from gtsweep.report.labels import paper_label, shown_label
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
+METHODS = ("detector", "selector", "descriptor", "transform")
+
+
 def paper(name: str) -> pd.DataFrame:
     return pd.read_csv(PAPER_DIR / name, keep_default_na=False)
 
@@ -163,7 +168,8 @@ def table_pairings(df: pd.DataFrame) -> Table | None:
     if part.empty:
         return None
     theirs = paper("table6_pairings_synthetic.csv").set_index(["detector", "descriptor"])
-    means = part.groupby(["detector", "descriptor"])[["pose_success", "n_correct", "precision"]].mean()
+    columns = ["pose_success", "n_correct", "precision"]  # a matching sweep has no pose_success: NA
+    means = part.groupby(["detector", "descriptor"])[[c for c in columns if c in part]].mean().reindex(columns=columns)
     out = []
     for (det, desc), row in means.sort_values("pose_success", ascending=False).iterrows():
         key = (paper_label(det), paper_label(desc))
@@ -196,6 +202,23 @@ def table_reference_counts(df: pd.DataFrame) -> Table | None:
                  pd.DataFrame(out).set_index("detector"))
 
 
+def table_cells(summaries: list[dict]) -> Table | None:
+    """Every cell with each reported schema metric of its experiment: a new metric needs no other edit here."""
+    records = []
+    for s in summaries:
+        experiment, values = schema.experiment_of(s), s.get("metrics") or {}
+        record = {**{k: s["methods"].get(k) or "" for k in METHODS}, "experiment": experiment, "status": s["status"]}
+        record.update({m.name: fmt(values.get(m.name), None, m.digits) for m in schema.metrics_of(experiment)
+                       if m.reported})
+        records.append(record)
+    if not records:
+        return None
+    cells = pd.DataFrame.from_records(records)
+    metrics = schema.ordered(c for c in cells.columns if c in schema.METRICS)
+    cells = cells[[c for c in cells.columns if c not in metrics] + metrics].fillna("").set_index("detector")
+    return Table("cells", "Every cell: the reported metrics of its experiment, aggregated over its views", cells)
+
+
 def build_tables(summaries: list[dict]) -> list[Table]:
     """Every survey table that the cells of ``summaries`` can fill."""
     df = frame(summaries)
@@ -213,11 +236,12 @@ def build_tables(summaries: list[dict]) -> list[Table]:
 
 
 def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True) -> tuple[list[Table], list[Path]]:
-    """Write every table as .md, .tex and .csv (and the plots) into ``out_dir``; returns tables and files."""
+    """Write every survey table and the per-cell table as .md, .tex and .csv (and the plots) into ``out_dir``;
+    returns the survey tables and every file."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tables, files = build_tables(summaries), []
-    for table in tables:
+    tables, files, cells = build_tables(summaries), [], table_cells(summaries)
+    for table in tables + ([cells] if cells else []):
         for suffix, text in ((".md", table.markdown()), (".tex", table.latex()), (".csv", table.cells.to_csv())):
             path = out_dir / f"{table.name}{suffix}"
             path.write_text(text + ("\n" if not text.endswith("\n") else ""))

@@ -21,6 +21,7 @@ from gtsweep.core.errors import BadInput
 
 PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
+MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
 
 
 def tracking_uri(cfg: Mapping | None) -> str:
@@ -105,8 +106,10 @@ class SweepTracker:
         return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs}
 
     def log_cell(self, cell, summary: Mapping, rows=None) -> None:
-        """One child run: the cell's full method configuration, every metric, steps per strength, NA reason."""
+        """One child run: the cell's full method configuration, its schema metrics, steps per strength, NA reason."""
         from mlflow.entities import Metric, Param, RunTag
+
+        from gtsweep.evaluation import schema
 
         if (cell.key, summary.get("hash")) in self.logged:
             return
@@ -122,30 +125,35 @@ class SweepTracker:
         run = self.client.create_run(self.experiment_id, run_name=cell.key, tags=tags)
         now = int(time.time() * 1000)
         # undefined values (e.g. ambiguity when no keypoint repeats) are logged as NaN: every metric is present
-        metrics = [Metric(k, _number(v), now, 0) for k, v in (summary.get("metrics") or {}).items()]
+        values = summary.get("metrics") or {}
+        metrics = [Metric(name, _number(values[name]), now, 0) for name in schema.ordered(values)]
         metrics += self._step_metrics(summary, now)
-        for step_key in ("strength", "reference_count"):
+        for step_key in schema.STEP_KEYS:
             if summary.get(f"by_{step_key}"):
                 tags[f"gtsweep.step_scale.{step_key}"] = str(step_scale([float(v) for v in summary[f"by_{step_key}"]]))
-        self.client.log_batch(run.info.run_id, metrics=metrics,
-                              params=[Param(k[:250], v[:6000]) for k, v in params.items()],
-                              tags=[RunTag(k, v) for k, v in tags.items() if k != "mlflow.parentRunId"])
+        params = [Param(k[:250], v[:6000]) for k, v in params.items()]
+        tags = [RunTag(k, v) for k, v in tags.items() if k != "mlflow.parentRunId"]
+        for start in range(0, max(len(metrics), 1), MAX_BATCH):  # MLflow takes at most 1000 metrics per call
+            self.client.log_batch(run.info.run_id, metrics=metrics[start:start + MAX_BATCH],
+                                  params=params if start == 0 else [], tags=tags if start == 0 else [])
         self.client.set_terminated(run.info.run_id, "FINISHED" if summary["status"] != "error" else "FAILED")
         self.logged.add((cell.key, summary.get("hash")))
 
     @staticmethod
     def _step_metrics(summary: Mapping, now: int) -> list:
-        """``<metric>_vs_strength`` / ``_vs_reference_count`` series; steps are strength x :func:`step_scale`."""
+        """``<metric>_vs_<step key>`` series of the schema's step keys; steps are the value x :func:`step_scale`."""
         from mlflow.entities import Metric
 
+        from gtsweep.evaluation import schema
+
         metrics = []
-        for step_key in ("strength", "reference_count"):
+        for step_key in schema.STEP_KEYS:
             by_step = summary.get(f"by_{step_key}") or {}
             scale = step_scale([float(v) for v in by_step]) if by_step else 1
             for value, values in by_step.items():
                 step = int(round(float(value) * scale))
-                metrics += [Metric(f"{name}_vs_{step_key}", float(v), now, step)
-                            for name, v in values.items() if _finite(v)]
+                metrics += [Metric(schema.series_name(name, step_key), float(values[name]), now, step)
+                            for name in schema.ordered(values) if _finite(values[name])]
         return metrics
 
     def abort(self, reason: str) -> None:
@@ -182,6 +190,8 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
     """Cell summaries rebuilt from a sweep's MLflow child runs (the report's other source)."""
     from mlflow.tracking import MlflowClient
 
+    from gtsweep.evaluation import schema
+
     client = MlflowClient(tracking_uri(None) if uri is None else uri)
     try:
         parent = client.get_run(parent_run_id)
@@ -190,23 +200,21 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
             from None
     runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",
                               max_results=50000)
+    experiment = parent.data.tags.get("gtsweep.experiment")
     summaries = []
     for run in runs:
         params, tags = run.data.params, run.data.tags
         methods = {k: params.get(k) for k in ("detector", "selector", "descriptor", "transform")}
+        series = {name: schema.parse_series(name) for name in run.data.metrics}
         summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
-                   "reason": tags.get(REASON_TAG),
-                   "metrics": {k: v for k, v in run.data.metrics.items() if "_vs_" not in k}}
-        for step_key in ("strength", "reference_count"):
-            series = [k for k in run.data.metrics if k.endswith(f"_vs_{step_key}")]
-            steps: dict[str, dict] = {}
-            for name in series:
-                history = client.get_metric_history(run.info.run_id, name)
-                scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
-                scale = float(tags.get(f"gtsweep.step_scale.{step_key}", scale))
-                for m in history:
-                    steps.setdefault(repr(m.step / scale), {})[name[: -len(f"_vs_{step_key}")]] = m.value
-            if steps:
-                summary[f"by_{step_key}"] = steps
+                   "reason": tags.get(REASON_TAG), "experiment": experiment,
+                   "metrics": {k: run.data.metrics[k] for k in schema.ordered(run.data.metrics) if not series[k]}}
+        for name, (metric, step_key) in ((k, v) for k, v in series.items() if v):
+            history = client.get_metric_history(run.info.run_id, name)
+            scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
+            scale = float(tags.get(f"gtsweep.step_scale.{step_key}", scale))
+            steps = summary.setdefault(f"by_{step_key}", {})
+            for m in history:
+                steps.setdefault(repr(m.step / scale), {})[metric] = m.value
         summaries.append(summary)
     return sorted(summaries, key=lambda s: s["key"] or "")

@@ -1,0 +1,212 @@
+"""The metric contract, declared once: every column of a sweep's per-view rows and how a cell aggregates it.
+
+Per-view rows (:mod:`gtsweep.evaluation.evaluate`, :mod:`gtsweep.orchestration.tasks`) hold the :data:`META`
+columns and metrics. Everything downstream reads this module: the cell summaries and ``results.csv``
+(:func:`gtsweep.orchestration.results.summarize`), MLflow, the report and the terminal summary. A column that is
+not declared here is an error, so a new metric needs only its :class:`Metric` entry (and a derived one only that:
+give it ``per_view``).
+
+Aggregations over a cell's views (or the views of one step):
+
+- ``mean``: mean of the finite per-view values (NaN, e.g. ambiguity when nothing repeats, is skipped);
+- ``ratio``: pooled over views, Σ numerator / Σ denominator of the two columns in ``of``;
+- ``rate``: share of views with outcome 1 among the views with a 0/1 outcome.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Iterable, Mapping
+
+import numpy as np
+import pandas as pd
+
+from gtsweep.core.errors import GtsweepError
+
+#: The experiments whose rows the schema describes, each extending the one before it.
+EXPERIMENTS = ("detection", "matching", "pose")
+#: Columns that identify a view (not aggregated). Synthetic views have a strength, pairs NaN; reference_count is
+#: the number of reference keypoints kept (survey Table 7), NaN without experiment.reference_counts.
+META = ("view", "image", "texture", "strength", "reference_count")
+#: Meta columns a cell is also aggregated per value of (``by_<step>`` in the summary, ``<metric>_vs_<step>``).
+STEP_KEYS = ("strength", "reference_count")
+#: The metric the terminal summary shows, per experiment.
+HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success"}
+#: Metrics drawn against the transform strength, per experiment (report plots).
+CURVES = {"detection": ("repeatability",), "matching": ("precision",), "pose": ("pose_success", "precision")}
+AGGREGATIONS = ("mean", "ratio", "rate")
+SCHEMA_FILE = "gtsweep/evaluation/schema.py"
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One per-view column and its cell aggregate."""
+
+    name: str
+    since: str  # the first experiment whose rows have it; the later ones have it too
+    unit: str
+    description: str  # one line, citing the survey section
+    aggregation: str = "mean"
+    reported: bool = True  # shown in the report's per-cell table
+    per_view: Callable[[pd.DataFrame], pd.Series] | None = None  # derived from other per-view columns
+    of: tuple[str, str] | None = None  # (numerator, denominator) columns of a ratio
+    digits: int = 2  # decimals in the report
+
+    @property
+    def experiments(self) -> tuple[str, ...]:
+        return EXPERIMENTS[EXPERIMENTS.index(self.since):]
+
+    @property
+    def bounded(self) -> bool:
+        """Values lie in [0, 1]."""
+        return self.unit == "share"
+
+
+def _declare(*metrics: Metric) -> dict[str, Metric]:
+    return {m.name: m for m in metrics}
+
+
+_DET, _MATCH, _POSE = EXPERIMENTS
+METRICS: dict[str, Metric] = _declare(
+    Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)"),
+    Metric("ambiguity", _DET, "matches", "mean number of reference matches of a repeated test keypoint (4.1)"),
+    Metric("few_keypoints", _DET, "share", "views with fewer than N test keypoints, '< N KPs' (survey 4.1)"),
+    Metric("n_detected", _DET, "keypoints", "test keypoints found by the detector before selection (survey Table 2)",
+           digits=0),
+    Metric("n_kp_test", _DET, "keypoints", "test keypoints after selection (survey 2.2)", digits=0),
+    Metric("n_kp_ref", _DET, "keypoints", "reference keypoints after selection (survey 2.2)", reported=False),
+    Metric("n_test_valid", _DET, "keypoints", "test keypoints inside both masks (survey 4)", reported=False),
+    Metric("n_ref_valid", _DET, "keypoints", "reference keypoints inside both masks (survey 4)", reported=False),
+    Metric("n_repeated", _DET, "keypoints", "test keypoints that repeat, repeatability's numerator (4.1)",
+           reported=False),
+    Metric("n_described_ref", _MATCH, "keypoints", "reference keypoints the descriptor kept (survey 2.3)",
+           reported=False),
+    Metric("n_described_test", _MATCH, "keypoints", "test keypoints the descriptor kept (survey 2.3)",
+           reported=False),
+    Metric("n_matches", _MATCH, "matches", "matches passing the ratio test 0.7 (survey 5)", digits=1),
+    Metric("n_correct", _MATCH, "matches", "number of correct matches, IoU > 0.5 (survey 4.2)", digits=1),
+    Metric("precision", _MATCH, "share", "correct / (correct + incorrect) matches (survey 4.2)"),
+    Metric("pose_success", _POSE, "share", "success rate: position error < 30 px, orientation < 1.5 deg (4.3)"),
+    Metric("position_error", _POSE, "px", "distance of the estimated to the true position (survey 4.3)", digits=1),
+    Metric("orientation_error", _POSE, "deg", "orientation error of the estimated pose (survey 4.3)"),
+    Metric("n_inliers", _POSE, "matches", "RANSAC inliers of the estimated pose (survey 5)", digits=1),
+    Metric("t_detect", _DET, "s", "detection and selection time of the test image (survey Table 3)", digits=3),
+    Metric("t_describe", _MATCH, "s", "description time of reference and test image (not in the survey)", digits=3),
+    Metric("t_match", _MATCH, "s", "matching time (not in the survey)", digits=3),
+    Metric("t_pose", _POSE, "s", "pose estimation time (not in the survey)", digits=3),
+)
+
+
+def _check(metric: Metric) -> Metric:
+    problems = []
+    if metric.since not in EXPERIMENTS:
+        problems.append(f"experiment {metric.since!r} is not one of {', '.join(EXPERIMENTS)}")
+    if metric.aggregation not in AGGREGATIONS:
+        problems.append(f"aggregation {metric.aggregation!r} is not one of {', '.join(AGGREGATIONS)}")
+    if (metric.aggregation == "ratio") != (metric.of is not None):
+        problems.append("a ratio needs of=(numerator, denominator), and only a ratio has it")
+    if metric.name in META or "_vs_" in metric.name:
+        problems.append("the name is a meta column or contains '_vs_'")
+    if problems:
+        raise GtsweepError(f"metric '{metric.name}' in {SCHEMA_FILE}: {'; '.join(problems)}")
+    return metric
+
+
+for _metric in METRICS.values():
+    _check(_metric)
+if not {*HEADLINE.values(), *(m for names in CURVES.values() for m in names)} <= set(METRICS):
+    raise GtsweepError(f"HEADLINE and CURVES in {SCHEMA_FILE} must name declared metrics")
+
+
+def register(metric: Metric) -> None:
+    """Declare one more metric (a plugin's, or a test's); its name must be new."""
+    if metric.name in METRICS:
+        raise GtsweepError(f"metric '{metric.name}' is already declared in {SCHEMA_FILE}")
+    METRICS[_check(metric).name] = metric
+
+
+def unregister(name: str) -> None:
+    METRICS.pop(name, None)
+
+
+def metrics_of(experiment: str | None) -> list[Metric]:
+    """The metrics of an experiment's rows in schema order (every metric for None)."""
+    return [m for m in METRICS.values() if experiment is None or experiment in m.experiments]
+
+
+def headline(experiment: str) -> str:
+    return HEADLINE[experiment]
+
+
+def experiment_of(summary: Mapping) -> str:
+    """A cell summary's experiment; summaries written before it was recorded: guessed from methods and metrics."""
+    if summary.get("experiment") in EXPERIMENTS:
+        return summary["experiment"]
+    if not (summary.get("methods") or {}).get("descriptor"):
+        return "detection"
+    return "pose" if headline("pose") in (summary.get("metrics") or {}) else "matching"
+
+
+def series_name(metric: str, step: str) -> str:
+    """The MLflow series of a metric against a step key: ``pose_success_vs_strength``."""
+    return f"{metric}_vs_{step}"
+
+
+def parse_series(name: str) -> tuple[str, str] | None:
+    """``(metric, step)`` of a series name (see :func:`series_name`), else None."""
+    metric, sep, step = name.partition("_vs_")
+    return (metric, step) if sep and step in STEP_KEYS else None
+
+
+def ordered(names: Iterable[str]) -> list[str]:
+    """Metric names in schema order; names no longer declared (older results) follow, sorted."""
+    names = set(names)
+    return [m for m in METRICS if m in names] + sorted(names - set(METRICS))
+
+
+def with_derived(rows: pd.DataFrame, experiment: str | None = None) -> pd.DataFrame:
+    """``rows`` plus the derived (``per_view``) metrics whose input columns are present."""
+    derived = {}
+    for metric in metrics_of(experiment):
+        compute = metric.per_view
+        if compute is None and metric.of and metric.name not in rows:  # a ratio's per-view value
+            compute = lambda r, num=metric.of[0], den=metric.of[1]: r[num] / r[den]  # noqa: E731
+        if compute is not None:
+            try:
+                derived[metric.name] = compute(rows)
+            except KeyError:  # an input column is missing: so is the metric
+                continue
+    return rows.assign(**derived) if derived else rows
+
+
+def check_columns(columns: Iterable[str], experiment: str | None) -> None:
+    """Raise :class:`GtsweepError` naming every column that is not declared for ``experiment``."""
+    declared = {*META, *(m.name for m in metrics_of(experiment))}
+    unknown = [c for c in columns if c not in declared]
+    if unknown:
+        scope = f" for the {experiment} experiment" if experiment else ""
+        raise GtsweepError(f"column(s) {', '.join(map(repr, unknown))} of the per-view rows not declared{scope} "
+                           f"in {SCHEMA_FILE}; add a Metric entry there")
+
+
+def _numbers(values: pd.Series) -> pd.Series:
+    return pd.to_numeric(values, errors="coerce").astype(float)
+
+
+def aggregate(metric: Metric, rows: pd.DataFrame) -> float:
+    """The metric over ``rows`` (a cell's views, or one step's) by its aggregation."""
+    if metric.aggregation == "ratio":
+        num, den = (_numbers(rows[c]) for c in metric.of)
+        keep = np.isfinite(num) & np.isfinite(den)
+        total = den[keep].sum()
+        return float(num[keep].sum() / total) if total else math.nan
+    values = _numbers(rows[metric.name])
+    values = values[np.isfinite(values)]
+    if metric.aggregation == "rate" and not values.isin((0.0, 1.0)).all():
+        raise GtsweepError(f"metric '{metric.name}' is a rate in {SCHEMA_FILE} but has values other than 0 and 1")
+    return float(values.mean()) if len(values) else math.nan
+
+
+def aggregable(metric: Metric, rows: pd.DataFrame) -> bool:
+    """The columns ``metric`` aggregates are in ``rows``."""
+    return all(c in rows for c in (metric.of or (metric.name,)))

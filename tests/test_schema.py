@@ -1,0 +1,140 @@
+"""The metric schema is the one contract: aggregations by hand, undeclared columns rejected, and a metric added by
+one schema entry reaching results.csv, MLflow and the report with no other edit."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import mlflow
+import numpy as np
+import pandas as pd
+import pytest
+from sweep_helpers import compose_config, tiny_overrides
+
+from gtsweep.core.errors import GtsweepError
+from gtsweep.evaluation import schema
+from gtsweep.orchestration.cache import library_versions
+from gtsweep.orchestration.results import summarize, summary_table
+from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.report.tables import write_report
+from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow
+
+NAN = math.nan
+
+
+@pytest.fixture
+def toy(request):
+    """Declare ``metric`` for one test only."""
+    metric = request.param
+    schema.register(metric)
+    yield metric
+    schema.unregister(metric.name)
+
+
+MATCH_SHARE = schema.Metric("match_share", "matching", "share", "matches per described test keypoint (a test's)",
+                            per_view=lambda rows: rows["n_matches"] / rows["n_described_test"])
+
+
+def test_mean_skips_undefined_views():
+    rows = pd.DataFrame({"image": ["a", "b", "c", "d"], "ambiguity": [1.0, NAN, 2.0, np.inf]})
+    assert summarize(rows, "detection")["metrics"] == {"ambiguity": 1.5}
+    assert math.isnan(summarize(rows.iloc[[1]], "detection")["metrics"]["ambiguity"])
+
+
+@pytest.mark.parametrize("toy", [schema.Metric("pooled", "matching", "share", "Σ correct / Σ matches (test)",
+                                               aggregation="ratio", of=("n_correct", "n_matches"))], indirect=True)
+def test_ratio_pools_over_views(toy):
+    # per view 1/2 and 9/10 (mean 0.7); pooled (1 + 9) / (2 + 10) = 10/12; the NaN view is left out
+    rows = pd.DataFrame({"n_correct": [1, 9, NAN], "n_matches": [2, 10, 4], "strength": [0.0, 90.0, 90.0]})
+    summary = summarize(rows, "matching")
+    assert summary["metrics"]["pooled"] == pytest.approx(10 / 12)
+    assert summary["by_strength"]["90.0"]["pooled"] == 0.9
+    assert math.isnan(summarize(rows.assign(n_matches=0, n_correct=0), "matching")["metrics"]["pooled"])
+
+
+@pytest.mark.parametrize("toy", [schema.Metric("found", "detection", "share", "views with a hit (test)",
+                                               aggregation="rate")], indirect=True)
+def test_rate_is_the_share_of_ones(toy):
+    rows = pd.DataFrame({"found": [1.0, 0.0, 1.0, NAN]})
+    assert summarize(rows, "detection")["metrics"]["found"] == pytest.approx(2 / 3)
+    with pytest.raises(GtsweepError, match="'found' is a rate"):
+        summarize(pd.DataFrame({"found": [0.5]}), "detection")
+
+
+def test_existing_metrics_keep_the_mean_of_finite_views():
+    rows = pd.DataFrame({"n_correct": [1, 9], "n_matches": [2, 10], "precision": [0.5, 0.9]})
+    assert summarize(rows, "matching")["metrics"]["precision"] == pytest.approx(0.7)  # not pooled (10/12)
+    assert {m.aggregation for m in schema.METRICS.values()} == {"mean"}
+
+
+def test_undeclared_column_is_one_clear_error():
+    rows = pd.DataFrame({"image": ["a"], "repeatability": [0.5], "new_score": [1.0]})
+    with pytest.raises(GtsweepError) as error:
+        summarize(rows, "detection")
+    message = str(error.value)
+    assert "'new_score'" in message and schema.SCHEMA_FILE in message and "\n" not in message
+    with pytest.raises(GtsweepError, match="'pose_success'.*detection experiment"):  # declared, other experiment
+        summarize(rows.drop(columns="new_score").assign(pose_success=1.0), "detection")
+
+
+def test_schema_declares_every_row_column():
+    declared = {*schema.META, *schema.METRICS}
+    assert set(schema.STEP_KEYS) <= set(schema.META)
+    assert {"n_test_valid", "n_ref_valid", "n_repeated", "n_kp_ref", "n_described_ref", "n_described_test",
+            "n_inliers", "t_detect", "t_describe", "t_match", "t_pose", "view", "texture"} <= declared
+    assert {e: schema.headline(e) for e in schema.EXPERIMENTS} == {
+        "detection": "repeatability", "matching": "precision", "pose": "pose_success"}
+    with pytest.raises(GtsweepError, match="already declared"):
+        schema.register(schema.METRICS["precision"])
+
+
+def test_summary_table_orders_columns_by_schema():
+    summaries = [{"methods": {"detector": "sift", "descriptor": None}, "status": "ok",
+                  "metrics": {"t_detect": 0.1, "old_metric": 2.0, "repeatability": 0.5}},
+                 {"methods": {"detector": "orb", "descriptor": None}, "status": "na", "reason": "no mask"}]
+    table = summary_table(summaries)
+    assert list(table.columns) == ["detector", "descriptor", "status", "reason", "repeatability", "t_detect",
+                                   "old_metric"]
+
+
+def test_terminal_summary_shows_the_schema_headline():
+    from gtsweep.cli.app import headline_tables
+
+    methods = {"detector": "sift", "selector": "nms", "descriptor": None, "transform": "rotation"}
+    outcome = SimpleNamespace(grid=SimpleNamespace(experiment={"name": "detection"}), summaries=[
+        {"methods": methods, "status": "ok", "metrics": {"t_detect": 0.1, "repeatability": 0.5}}])
+    ((title, pivot),) = headline_tables(outcome).items()
+    assert title == "repeatability (rotation)" and pivot.loc["sift", "nms"] == "0.50"
+    assert schema.experiment_of({"methods": {"descriptor": "brief"}, "metrics": {"precision": 1.0}}) == "matching"
+
+
+@pytest.mark.parametrize("toy", [MATCH_SHARE], indirect=True)
+def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    cfg = compose_config(tiny_overrides(
+        tmp_path, "experiment=matching", "detector=[censure]", "descriptor=[brief]", "selector=[nms]",
+        "transform=[rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial",
+        f"mlflow.tracking_uri={uri}"))
+    tracker = SweepTracker(cfg.mlflow, tmp_path / "run", "config: yes", "schema-test")
+    outcome = run_sweep(cfg, tmp_path / "run", hooks=(tracker.log_cell,),
+                        on_start=lambda grid, fp: tracker.start(grid, fp, library_versions()))
+    tracker.end(outcome)
+
+    views = pd.read_csv(next((tmp_path / "run" / "cells").glob("*.csv")))
+    expected = (views["n_matches"] / views["n_described_test"]).mean()
+    assert np.allclose(views["match_share"], views["n_matches"] / views["n_described_test"])  # per view too
+    results = pd.read_csv(tmp_path / "run" / "results.csv")
+    assert results.loc[0, "match_share"] == pytest.approx(expected) and 0 < expected <= 1
+    assert list(results.columns).index("match_share") > list(results.columns).index("t_match")  # schema order
+
+    client = mlflow.tracking.MlflowClient(uri)
+    (child,) = client.search_runs([tracker.experiment_id], f"tags.mlflow.parentRunId = '{tracker.parent_id}'")
+    assert child.data.metrics["match_share"] == pytest.approx(expected)
+    assert sorted(m.step for m in client.get_metric_history(child.info.run_id, "match_share_vs_strength")) == [0, 90]
+
+    for source, summaries in (("files", outcome.summaries), ("mlflow", summaries_from_mlflow(tracker.parent_id, uri))):
+        _, files = write_report(summaries, tmp_path / source, plots=False)
+        assert {"cells.md", "cells.csv", "cells.tex"} <= {f.name for f in files}
+        cells = pd.read_csv(tmp_path / source / "cells.csv")
+        assert cells.loc[0, "match_share"] == float(f"{expected:.2f}"), source
+        assert "match_share" in (tmp_path / source / "cells.md").read_text()
