@@ -158,7 +158,7 @@ def test_microgps_pose_file_without_poses_at_the_end(tmp_path):
 
 def test_loader_options_are_checked(tmp_path):
     fx.image_folder(tmp_path)
-    with pytest.raises(BadInput, match="unknown key"):
+    with pytest.raises(BadInput, match="dataset loader 'folder' has no parameter 'n_pairs'"):
         load_dataset({"loader": "folder", "root": str(tmp_path), "n_pairs": 3})
     with pytest.raises(BadInput, match="no texture granite"):
         load_dataset({"loader": "folder", "root": str(tmp_path), "textures": ["granite"]})

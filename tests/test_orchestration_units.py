@@ -99,7 +99,10 @@ def test_all_expands_to_every_option():
     (["selector.nms.params.n=abc"], "expected an int like the default 1000, got str"),
     (["seed=x"], "expected an int"),
     (["runner.num_cpuz=2"], "unknown config key 'runner.num_cpuz'"),
-    (["detector.sift.params.nfeaturez=3"], "unknown config key"),
+    (["detector.sift.params.nfeaturez=3"], "detector 'sift' has no parameter 'nfeaturez'; its parameters: "),
+    (["detector=[sift]", "detector.sift.params.contrastThreshol=0.02"], "no parameter 'contrastThreshol'"),
+    (["detector=[sift]", "detector.orb.params.nfeatures=5"], "detector 'orb' is not selected"),
+    (["descriptor.beblid.per_detector.sift.n_bitz=5"], "descriptor 'beblid' has no parameter 'n_bitz'"),
     (["detector.nope.params.x=3"], "unknown detector 'nope'"),
 ])
 def test_bad_overrides_fail_in_one_line(args, message, capsys):

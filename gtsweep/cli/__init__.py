@@ -11,6 +11,8 @@ import sys
 from gtsweep.cli.overrides import (
     expand_all,
     fail,
+    force_add,
+    place,
     resume_args,
     searchpath_override,
     validate,
@@ -24,10 +26,10 @@ def main(argv: list[str] | None = None) -> None:
     try:
         args = expand_all(args)
         validate(args)
-        args += resume_args(args, multirun)
+        args = force_add(args)
+        args = place(args, [*resume_args(args, multirun), searchpath_override()])
     except GtsweepError as e:
         fail(e)
-    args.append(searchpath_override())
     sys.argv = [sys.argv[0], *args]
     from gtsweep.cli.app import hydra_main
 

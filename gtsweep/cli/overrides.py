@@ -2,7 +2,9 @@
 
 Before Hydra parses the command line, gtsweep expands ``group=all`` to every option of a grid group, checks every
 override (unknown method, unknown key, wrong type) so that a mistake costs one clear line instead of a traceback,
-and, with ``resume=true``, points Hydra at the newest earlier output directory of the same command.
+and, with ``resume=true``, points Hydra at the newest earlier output directory of the same command. A method's
+parameters are checked against its registry defaults (its YAML holds only overrides), and an override of one is
+passed to Hydra in its force-add form ``++group.name.params.key=value``, since the key may be absent from the YAML.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import yaml
 
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
+from gtsweep.core.registry import compatible
 
 GRID_GROUPS = ("detector", "selector", "descriptor", "transform")
 SINGLE_GROUPS = ("dataset", "experiment", "sweeps")
@@ -108,14 +111,38 @@ def _default_option(group: str, args: list[str]) -> str | None:
     return None
 
 
+def _param_key(key: str) -> tuple[str, str, str] | None:
+    """``(group, method, parameter)`` for ``group.method.params.parameter`` (or a descriptor's
+    ``descriptor.method.per_detector.detector.parameter``), else None."""
+    parts = key.split(".")
+    if parts[0] not in GRID_GROUPS or len(parts) < 4:
+        return None
+    if parts[2] == "params" and len(parts) == 4 or parts[2] == "per_detector" and len(parts) == 5:
+        return parts[0], parts[1], parts[-1]
+    return None
+
+
+def _method(group: str, name: str):
+    """The registry entry of a grid group's option; None for an option without one (the real-pair transforms)."""
+    from gtsweep.orchestration.grid import REGISTRIES
+
+    return REGISTRIES[group].get(name, None)
+
+
 def _default_value(key: str, args: list[str]):
-    """``(found, default)`` of a dotted key, looked up in the YAML file that defines it."""
+    """``(found, default)`` of a dotted key: a method parameter's registry default, else the YAML value."""
     parts = key.split(".")
     head = parts[0]
     if head in GRID_GROUPS:
         path, inner = CONF_DIR / head / f"{parts[1]}.yaml" if len(parts) > 1 else None, parts[1:]
         if path is None or not path.exists():
             raise UnknownMethod(head, parts[1] if len(parts) > 1 else "", options(head))
+        param = _param_key(key)
+        method = _method(head, parts[1]) if param else None
+        if method is not None:
+            if param[2] not in method.defaults:
+                method.params({param[2]: None})  # raises: no parameter '...'; its parameters: ...
+            return True, method.defaults[param[2]]
     elif head in ("dataset", "experiment"):
         option = _default_option(head, args)
         path, inner = CONF_DIR / head / f"{option}.yaml", parts[1:]
@@ -127,18 +154,6 @@ def _default_value(key: str, args: list[str]):
             return False, None
         node = node[part]
     return True, node
-
-
-def _compatible(default, value) -> bool:
-    if default is None or default == "???" or value is None:
-        return True
-    if isinstance(default, bool) or isinstance(value, bool):
-        return isinstance(default, bool) and isinstance(value, bool)
-    if isinstance(default, (int, float)):
-        return isinstance(value, int) if isinstance(default, int) else isinstance(value, (int, float))
-    if isinstance(default, str):
-        return isinstance(value, str)
-    return isinstance(value, type(default))
 
 
 def validate(args: list[str]) -> None:
@@ -156,10 +171,63 @@ def validate(args: list[str]) -> None:
         if not found:
             raise BadInput(f"unknown config key '{key}' (to add a new key write +{key}=...)")
         for value in _values(override):
-            if not _compatible(default, value):
+            if default != "???" and not compatible(default, value):
                 kind = type(default).__name__
                 raise BadInput(f"override '{key}={value}': expected {'an' if kind[0] in 'aeiou' else 'a'} {kind} "
                                f"like the default {default!r}, got {type(value).__name__}")
+
+
+def force_add(args: list[str]) -> list[str]:
+    """Method parameter overrides in Hydra's force-add form ``++group.name.params.key=value``.
+
+    A method's YAML holds only the parameters a user overrides, and Hydra's struct mode refuses a key absent from
+    it. The method must be selected in every job, else the force-add would put it in the grid.
+    """
+    rewritten = []
+    for arg in args:
+        key = arg.lstrip("+").partition("=")[0]
+        param = _param_key(key) if "=" in arg and not arg.startswith(("-", "~")) else None
+        if param is None or arg.startswith("+") and not arg.startswith("++"):
+            rewritten.append(arg)
+            continue
+        group, name, _ = param
+        selected = _selected(group, args)
+        if selected is not None and name not in selected:
+            raise BadInput(f"override '{arg}': {group} '{name}' is not selected (selected: "
+                           f"{', '.join(sorted(selected))}); add it, e.g. {group}=[{name},...]")
+        rewritten.append(f"++{arg.lstrip('+')}")
+    return rewritten
+
+
+def _selected(group: str, args: list[str]) -> set[str] | None:
+    """The options of a grid group that every job selects (``tuned/sift`` selects ``sift``); None if unknown."""
+    from hydra.core.override_parser.types import Glob
+
+    jobs, presets = None, [_default_option("sweeps", [])]
+    for override in _overrides(args):
+        if override.key_or_group == group and not override.is_delete():
+            value = override.value()
+            jobs = [value.filter(options(group))] if isinstance(value, Glob) else _values(override)
+        elif override.key_or_group == "sweeps":
+            presets = _values(override)
+    if jobs is None:
+        if len(presets) != 1:
+            return None
+        entries = _yaml(group_dir("sweeps") / f"{presets[0]}.yaml").get("defaults", []) if presets[0] else []
+        jobs = [entry[f"override /{group}"] for entry in entries
+                if isinstance(entry, dict) and f"override /{group}" in entry]
+    if not jobs:
+        jobs = [entry[group] for entry in _yaml(CONF_DIR / "config.yaml").get("defaults", [])
+                if isinstance(entry, dict) and group in entry]
+    names = [{str(n).split("/")[-1] for n in (job if isinstance(job, list) else [job])} for job in jobs]
+    return set.intersection(*names) if names else None
+
+
+def place(args: list[str], extra: list[str]) -> list[str]:
+    """``args`` with ``extra`` overrides next to the first override: Hydra's parser takes the overrides as one run
+    of positional arguments, so one appended after a flag such as ``--cfg job`` would be refused."""
+    first = next((i for i, a in enumerate(args) if "=" in a and not a.startswith("-")), None)
+    return [*args, *extra] if first is None else [*args[:first + 1], *extra, *args[first + 1:]]
 
 
 def sweep_key(args: list[str]) -> str:
@@ -195,6 +263,7 @@ def compose_config(overrides: list[str]):
 
     overrides = expand_all(list(overrides))
     validate(overrides)
+    overrides = force_add(overrides)
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return compose(config_name="config", overrides=[*overrides, searchpath_override()])
 

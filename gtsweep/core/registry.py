@@ -11,29 +11,36 @@ one lookup (:meth:`Registry.get`) that lists the valid names when a name is unkn
 from __future__ import annotations
 
 import functools
+import importlib
 import inspect
+import numbers
+import re
 from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, Iterable, Iterator, Mapping, TypeVar
 
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
 
+#: OpenCV's prefix of a reason: ``OpenCV(5.0.0) /path/to/file.cpp:291: error: ``.
+_OPENCV_WHERE = re.compile(r"^OpenCV\([^)]*\)\s+\S+:\d+:\s+error:\s*")
+
 
 def reason_line(error: BaseException) -> str:
-    """The line of an error message that says why: OpenCV puts it last (``error: (-215:Assertion failed) ...``)."""
+    """The line of an error message that says why: OpenCV puts it last (``(-215:Assertion failed) ...``), after
+    the source file it came from, which is dropped."""
     lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
-    return lines[-1] if lines else type(error).__name__
+    return _OPENCV_WHERE.sub("", lines[-1]) if lines else type(error).__name__
 
 
-def _compatible(default, value) -> bool:
+def compatible(default, value) -> bool:
     """``value`` can stand where ``default`` stands: same kind of value (an int is a fine float); None is free."""
     if default is None or value is None:
         return True
     if isinstance(default, bool) or isinstance(value, bool):
         return isinstance(default, bool) and isinstance(value, bool)
     if isinstance(default, float):
-        return isinstance(value, (int, float))
+        return isinstance(value, numbers.Real)
     if isinstance(default, int):
-        return isinstance(value, int)
+        return isinstance(value, numbers.Integral)
     if isinstance(default, (list, tuple)):
         return isinstance(value, (list, tuple))
     return isinstance(value, type(default))
@@ -48,6 +55,8 @@ class Method:
     label: str
     create: Callable[..., Any]
     defaults: Mapping[str, Any] = field(default_factory=dict)
+    #: A cheap call of a built method that makes it use its parameters (OpenCV checks most only when it runs).
+    probe: Callable[[Any], Any] | None = field(default=None, repr=False)
 
     def params(self, overrides: Mapping[str, Any] | None = None) -> dict:
         """The defaults with ``overrides`` merged in strictly (unknown key or wrong type: one-line BadInput)."""
@@ -56,7 +65,7 @@ class Method:
             if key not in self.defaults:
                 valid = ", ".join(sorted(self.defaults)) or "none"
                 raise BadInput(f"{self.family} '{self.name}' has no parameter '{key}'; its parameters: {valid}")
-            if not _compatible(self.defaults[key], value):
+            if not compatible(self.defaults[key], value):
                 raise BadInput(f"{self.family} '{self.name}': parameter {key}={value!r} should be "
                                f"{type(self.defaults[key]).__name__} like its default {self.defaults[key]!r}")
             merged[key] = value
@@ -72,7 +81,25 @@ class Method:
         except GtsweepError:
             raise
         except Exception as e:  # OpenCV's cv2.error, TypeError, ValueError: the parameters were rejected
-            raise BadInput(f"{self.family} '{self.name}' rejects its parameters {params}: {reason_line(e)}") from None
+            raise BadInput(self.rejection(params, e)) from None
+
+    def check(self, overrides: Mapping[str, Any] | None = None) -> dict:
+        """Pre-flight: the full parameters, after building the method once and running its :attr:`probe`, so that
+        a parameter the method rejects is one line before any work."""
+        params = self.params(overrides)
+        built = self.build(params)
+        if self.probe is not None:
+            try:
+                self.probe(built)
+            except Exception as e:  # noqa: BLE001 - whatever the library raises, it rejected the parameters
+                raise BadInput(self.rejection(params, e)) from None
+        return params
+
+    def rejection(self, params: Mapping[str, Any], error: BaseException) -> str:
+        """One line: this method rejects ``params`` (the ones that differ from its defaults), and why."""
+        changed = [f"{k}={v!r}" for k, v in params.items() if k not in self.defaults or self.defaults[k] != v]
+        what = ", ".join(changed) if changed else f"its default parameters {dict(params)}"
+        return f"{self.family} '{self.name}' rejects {what}: {reason_line(error)}"
 
 
 def function_defaults(function: Callable, positional: int) -> dict:
@@ -86,7 +113,19 @@ def partial_factory(function: Callable) -> Callable[..., Callable]:
     return lambda **params: functools.partial(function, **params)
 
 
+def lazy_factory(module: str, attribute: str) -> Callable[..., Any]:
+    """A factory that imports ``module`` on first use (an optional or heavy method: SURF's port, XFeat's network);
+    a failing import is :meth:`Method.build`'s "not available"."""
+
+    def create(**params):
+        return getattr(importlib.import_module(module), attribute)(**params)
+
+    create.__qualname__ = f"{module}.{attribute}"
+    return create
+
+
 M = TypeVar("M", bound=Method)
+_REQUIRED = object()
 
 
 class Registry(Generic[M]):
@@ -104,12 +143,17 @@ class Registry(Generic[M]):
         self._methods[method.name] = method
         return method
 
-    def get(self, name: str) -> M:
-        """The method called ``name``; :class:`UnknownMethod` lists the valid names otherwise."""
+    def get(self, name: str, default: Any = _REQUIRED) -> M:
+        """The method called ``name``; :class:`UnknownMethod` lists the valid names otherwise (or ``default``
+        when one is given)."""
         try:
             return self._methods[name]
         except (KeyError, TypeError):
+            if default is not _REQUIRED:
+                return default
             raise UnknownMethod(self.family, str(name), self._methods) from None
+
+    __getitem__ = get
 
     def names(self) -> list[str]:
         return list(self._methods)

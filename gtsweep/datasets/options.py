@@ -17,15 +17,9 @@ def plain(cfg: Mapping) -> dict:
 
 
 def read(cfg: Mapping, defaults: Mapping[str, Any], loader: str) -> dict:
-    """``defaults`` updated with ``cfg``; unknown keys and a missing ``root`` (when required) raise BadInput."""
-    given = plain(cfg)
-    known = {**COMMON, **defaults}
-    unknown = sorted(set(given) - set(known))
-    if unknown:
-        raise BadInput(f"unknown key(s) for dataset loader '{loader}': {', '.join(unknown)}; "
-                       f"valid keys: {', '.join(sorted(known))}")
-    merged = {**known, **given}
-    merged["loader"] = loader
+    """``defaults`` updated with ``cfg`` (whose keys :func:`gtsweep.datasets.load_dataset` has checked against
+    the loader's registry entry); a missing mandatory value (``???``) raises BadInput."""
+    merged = {**COMMON, **defaults, **plain(cfg), "loader": loader}
     for key, value in merged.items():
         if value == "???":
             raise BadInput(f"dataset.{key} is required (give it on the command line, e.g. dataset.{key}=...)")

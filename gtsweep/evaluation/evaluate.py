@@ -13,9 +13,10 @@ import time
 
 from gtsweep.evaluation import metrics
 from gtsweep.evaluation.transforms import ViewPair
-from gtsweep.stages.describe import describe_timed, get_descriptor
+from gtsweep.stages.describe import get_descriptor
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.match import match_descriptors
+from gtsweep.stages.pairing import describe_timed
 from gtsweep.stages.pose import estimate_pose
 from gtsweep.stages.select import select
 

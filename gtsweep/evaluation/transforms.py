@@ -7,15 +7,14 @@ rotation 0-180 degrees, translation IoU 0.2-1.0, Gaussian noise sigma 0-40, gamm
 """
 from __future__ import annotations
 
-import inspect
 import math
 from dataclasses import dataclass
-from typing import Callable
 
 import cv2
 import numpy as np
 
-from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.errors import BadInput
+from gtsweep.core.registry import Method, Registry, function_defaults, partial_factory
 
 
 @dataclass(frozen=True)
@@ -182,12 +181,26 @@ def adjust_gamma(image, gamma: float) -> ViewPair:
     return _photometric_pair(image, gamma_table(gamma)[image], "gamma", gamma)
 
 
-TRANSFORMS: dict[str, Callable[..., ViewPair]] = {
-    "rotation": rotate,
-    "translation": translate,
-    "noise": add_noise,
-    "gamma": adjust_gamma,
-}
+@dataclass(frozen=True, kw_only=True)
+class TransformSpec(Method):
+    """A synthetic transform ``function(image, strength, **params)``; a ``seeded`` one also takes ``seed``."""
+
+    seeded: bool = False
+
+
+def _transform(name: str, label: str, function) -> TransformSpec:
+    defaults = function_defaults(function, 2)
+    seeded = "seed" in defaults
+    defaults.pop("seed", None)  # the seed comes from synthesize(), per image and strength, not from a config
+    return TransformSpec("transform", name, label, partial_factory(function), defaults, seeded=seeded)
+
+
+TRANSFORMS: Registry[TransformSpec] = Registry("transform", [
+    _transform("rotation", "Rotation", rotate),
+    _transform("translation", "Translation", translate),
+    _transform("noise", "Noise", add_noise),
+    _transform("gamma", "Gamma", adjust_gamma),
+])
 
 STRENGTHS: dict[str, list[float]] = {
     "rotation": [0, 15, 30, 45, 60, 90, 120, 150, 180],
@@ -199,13 +212,6 @@ STRENGTHS: dict[str, list[float]] = {
 
 def synthesize(name: str, image, strength: float, seed: int = 0, **params) -> ViewPair:
     """Apply the transform registered as ``name`` with the given strength; ``seed`` only matters for noise."""
-    if name not in TRANSFORMS:
-        raise UnknownMethod("transform", name, TRANSFORMS)
-    transform = TRANSFORMS[name]
-    accepted = list(inspect.signature(transform).parameters)[2:]
-    unknown = sorted(set(params) - set(accepted))
-    if unknown:
-        raise BadInput(f"transform '{name}' has no parameter(s) {', '.join(unknown)}")
-    if "seed" in accepted:
-        params["seed"] = seed
-    return transform(image, strength, **params)
+    spec = TRANSFORMS.get(name)
+    transform = spec.build(params)
+    return transform(image, strength, seed=seed) if spec.seeded else transform(image, strength)

@@ -103,8 +103,9 @@ def job_transforms(settings: Mapping) -> dict:
 # ------------------------------------------------------------------------------------------------- targets
 def build_targets(cfg: Mapping, settings: Mapping) -> list[Target]:
     """One target per selected detector, or per pairing for the pose objective; search spaces checked."""
-    from gtsweep.stages.describe import applicability, descriptor_params
+    from gtsweep.stages.describe import descriptor_params
     from gtsweep.stages.detect import get_detector
+    from gtsweep.stages.pairing import applicability
 
     detectors = plain(cfg.get("detector")) or {}
     if not detectors:

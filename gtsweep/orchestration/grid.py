@@ -1,7 +1,9 @@
 """The grid of a sweep: which cells (detector x selector x descriptor x transform) to evaluate, from a config.
 
-A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell only
-when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work.
+Each method's YAML params are merged onto its registry defaults (the full effective parameters, as results and
+MLflow record them) and the method is built once, so that a parameter it rejects stops the sweep here, in one
+line. A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell
+only when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work.
 """
 from __future__ import annotations
 
@@ -10,12 +12,19 @@ from typing import Mapping
 
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.stages.describe import DESCRIPTORS, applicability
+from gtsweep.core.registry import Registry
+from gtsweep.evaluation.transforms import TRANSFORMS
+from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
+from gtsweep.stages.pairing import applicability
 from gtsweep.stages.select import SELECTORS
 
 EXPERIMENTS = ("detection", "matching", "pose")
 TRANSFORM_KINDS = ("synthetic", "pairs")
+PAIR_TRANSFORMS = ("incremental", "absolute")
+#: The registry behind each grid group (the real-pair transforms have no parameters, so no entry).
+REGISTRIES: dict[str, Registry] = {"detector": DETECTORS, "selector": SELECTORS, "descriptor": DESCRIPTORS,
+                                   "transform": TRANSFORMS}
 
 
 @dataclass(frozen=True)
@@ -71,41 +80,64 @@ class Grid:
 NOT_RESULTS = ("search_space",)
 
 
-def _group(cfg: Mapping, name: str, registry: Mapping) -> dict[str, dict]:
-    """The options of a grid group as ``{name: config}``, without keys that do not change results."""
-    node = plain(cfg.get(name))
+def resolve_group(cfg: Mapping, group: str) -> dict[str, dict]:
+    """The options of grid group ``group`` as ``{name: node}``, sorted, without keys that do not change results.
+
+    A node's ``params`` are its YAML params merged strictly onto the method's registry defaults, and the method is
+    built once with them (pre-flight); a descriptor once per detector of ``cfg`` with that detector's
+    ``per_detector`` params. An unknown method or parameter, or one the method rejects, is a one-line BadInput.
+    """
+    registry = REGISTRIES[group]
+    node = plain(cfg.get(group))
     if not isinstance(node, dict) or not node:
-        raise BadInput(f"the grid needs at least one {name}; choices: {', '.join(sorted(registry))}")
-    for option, settings in node.items():
-        if option not in registry:
-            raise UnknownMethod(name, option, registry)
+        choices = [*registry, *PAIR_TRANSFORMS] if group == "transform" else list(registry)
+        raise BadInput(f"the grid needs at least one {group}; choices: {', '.join(sorted(choices))}")
+    resolved = {}
+    for name in sorted(node):
+        settings = node[name]
         if not isinstance(settings, dict):
-            raise BadInput(f"{name}.{option} must be a mapping with 'params', got {settings!r}")
-    return {option: {k: v for k, v in node[option].items() if k not in NOT_RESULTS} for option in sorted(node)}
+            raise BadInput(f"{group}.{name} must be a mapping with 'params', got {settings!r}")
+        settings = {k: v for k, v in settings.items() if k not in NOT_RESULTS}
+        if group == "transform":
+            _check_transform(name, settings)
+            if settings["kind"] == "pairs":
+                resolved[name] = settings
+                continue
+        method = registry.get(name)
+        settings["params"] = method.params(settings.get("params"))
+        for params in _variants(cfg, group, settings):
+            method.check(params)
+        resolved[name] = settings
+    return resolved
 
 
-def _transforms(cfg: Mapping) -> dict[str, dict]:
-    from gtsweep.evaluation.transforms import TRANSFORMS
+def _variants(cfg: Mapping, group: str, settings: dict) -> list[dict]:
+    """The parameter sets a method runs with: a descriptor's differ per detector (``per_detector``)."""
+    if group != "descriptor":
+        return [settings["params"]]
+    per_detector = settings.get("per_detector") or {}
+    for detector in per_detector:
+        DETECTORS.get(detector)
+    detectors = sorted({*per_detector, *(plain(cfg.get("detector")) or {})})
+    variants = [settings["params"], *(descriptor_params(settings, d) for d in detectors)]
+    return list({config_hash(params): params for params in variants}.values())
 
-    node = plain(cfg.get("transform")) or {}
-    if not node:
-        raise BadInput("the grid needs at least one transform; choices: "
-                       f"{', '.join(sorted([*TRANSFORMS, 'incremental', 'absolute']))}")
-    for name, settings in node.items():
-        kind = (settings or {}).get("kind")
-        if kind not in TRANSFORM_KINDS:
-            raise BadInput(f"transform.{name}.kind must be one of {', '.join(TRANSFORM_KINDS)}, got {kind!r}")
-        if kind == "synthetic":
-            if name not in TRANSFORMS:
-                raise UnknownMethod("transform", name, [*TRANSFORMS, "incremental", "absolute"])
-            strengths = settings.get("strengths")
-            if not isinstance(strengths, list) or not strengths:
-                raise BadInput(f"transform.{name}.strengths must be a non-empty list of numbers")
-            if not all(isinstance(s, (int, float)) and not isinstance(s, bool) for s in strengths):
-                raise BadInput(f"transform.{name}.strengths must be numbers, got {strengths}")
-        elif name not in ("incremental", "absolute"):
+
+def _check_transform(name: str, settings: dict) -> None:
+    kind = settings.get("kind")
+    if kind not in TRANSFORM_KINDS:
+        raise BadInput(f"transform.{name}.kind must be one of {', '.join(TRANSFORM_KINDS)}, got {kind!r}")
+    if kind == "pairs":
+        if name not in PAIR_TRANSFORMS:
             raise BadInput(f"transform '{name}' of kind 'pairs' must be named incremental or absolute")
-    return dict(sorted(node.items()))
+        return
+    if name not in TRANSFORMS:
+        raise UnknownMethod("transform", name, [*TRANSFORMS, *PAIR_TRANSFORMS])
+    strengths = settings.get("strengths")
+    if not isinstance(strengths, list) or not strengths:
+        raise BadInput(f"transform.{name}.strengths must be a non-empty list of numbers")
+    if not all(isinstance(s, (int, float)) and not isinstance(s, bool) for s in strengths):
+        raise BadInput(f"transform.{name}.strengths must be numbers, got {strengths}")
 
 
 def build_grid(cfg: Mapping) -> Grid:
@@ -115,10 +147,10 @@ def build_grid(cfg: Mapping) -> Grid:
         raise BadInput(f"experiment must be one of {', '.join(EXPERIMENTS)}, got {experiment.get('name')!r}")
     grid = Grid(
         experiment=experiment,
-        detectors=_group(cfg, "detector", DETECTORS),
-        selectors=_group(cfg, "selector", SELECTORS),
-        descriptors=_group(cfg, "descriptor", DESCRIPTORS) if experiment["name"] != "detection" else {},
-        transforms=_transforms(cfg),
+        detectors=resolve_group(cfg, "detector"),
+        selectors=resolve_group(cfg, "selector"),
+        descriptors=resolve_group(cfg, "descriptor") if experiment["name"] != "detection" else {},
+        transforms=resolve_group(cfg, "transform"),
     )
     pairings = _pairings(cfg, grid)
     for transform in grid.transforms:

@@ -10,7 +10,7 @@ PAPER_NAME = {"xfeat": "LIFT"}
 
 
 def label(name: str) -> str:
-    spec = DETECTORS.get(name) or DESCRIPTORS.get(name)
+    spec = DETECTORS.get(name, None) or DESCRIPTORS.get(name, None)
     return spec.label if spec else name
 
 

@@ -1,48 +1,32 @@
 """Feature description (survey section 2.3): a registry of descriptors, their norms and their requirements.
 
-A pairing the survey could not evaluate (its NA cells, section 5.2) is reported by :func:`applicability` with the
-reason, and :func:`describe` raises :class:`~gtsweep.core.errors.NotApplicable` for it — never a crash, never a silent
-zero:
-
-- the AKAZE descriptor needs AKAZE keypoints (it reads their nonlinear scale level from ``class_id``);
-- DAISY needs keypoints with an orientation;
-- the ORB descriptor needs keypoints on its own pyramid scales, which excludes SIFT (the survey's LIFT too; our
-  learned stand-in XFeat gives fixed-size keypoints at octave 0, which ORB describes).
-
-Foreign keypoints are normalised before description: their ``octave`` is reset to 0 (SIFT packs a large integer
-there and MSD uses 0–14; OpenCV's ORB/SIFT would read it as a pyramid level and try to allocate ~68 GB), and
-keypoints without an orientation are described upright (angle 0).
+A descriptor declares which keypoints it can describe (``only_detectors``, ``excluded_detectors``,
+``requires_orientation``); :mod:`gtsweep.stages.pairing` turns that into the survey's NA cells (section 5.2),
+since it needs the detectors' capabilities too. Foreign keypoints are normalised before description: their
+``octave`` is reset to 0 (SIFT packs a large integer there and MSD uses 0–14; OpenCV's ORB/SIFT would read it as a
+pyramid level and try to allocate ~68 GB), and keypoints without an orientation are described upright (angle 0).
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
-from typing import Callable
 
 import cv2
 import numpy as np
 
-from gtsweep.core.errors import NotApplicable, UnknownMethod
+from gtsweep.core.errors import GtsweepError
+from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
 from gtsweep.stages import keypoints as kp
-from gtsweep.stages.detect import (
-    build_method,
-    create_surf,
-    create_xfeat,
-    first_line,
-    get_detector,
-)
 
 _x = cv2.xfeatures2d
 HAMMING, L2 = "hamming", "l2"
 
 
-@dataclass(frozen=True)
-class DescriptorSpec:
-    """What a descriptor is, how its vectors are compared, and what keypoints it can describe."""
+@dataclass(frozen=True, kw_only=True)
+class DescriptorSpec(Method):
+    """A descriptor, how its vectors are compared, and what keypoints it can describe."""
 
-    name: str
-    label: str  # as printed in the survey's tables
-    create: Callable[..., object]
     norm: str  # HAMMING for binary, L2 for real-valued descriptors
     requires_orientation: bool = False
     only_detectors: tuple[str, ...] | None = None  # None: any detector
@@ -50,52 +34,48 @@ class DescriptorSpec:
     learned: bool = False
 
 
+_descriptor = functools.partial(DescriptorSpec, "descriptor")
 _ORB_SCALES = "the ORB descriptor needs keypoints on its own pyramid scales (survey 5.2)"
+_NONLINEAR = {"extended": False, "upright": False}  # KAZE's M-SURF, and SURF's own switches
+_BLID = {"scale_factor": 5.0}  # BEBLID/TEBLID; per_detector in their YAML adapts it to each keypoint size
 
-DESCRIPTORS: dict[str, DescriptorSpec] = {
-    s.name: s
-    for s in [
-        DescriptorSpec("orb", "ORB", cv2.ORB_create, HAMMING,
-                       excluded_detectors={"sift": _ORB_SCALES}),
-        DescriptorSpec("brief", "BRIEF", _x.BriefDescriptorExtractor_create, HAMMING),
-        DescriptorSpec("latch", "LATCH", _x.LATCH_create, HAMMING),
-        DescriptorSpec("surf", "SURF", create_surf, L2),
-        DescriptorSpec("sift", "SIFT", cv2.SIFT_create, L2),
-        DescriptorSpec("akaze", "AKAZE", _x.AKAZE_create, HAMMING, only_detectors=("akaze",)),
-        DescriptorSpec("brisk", "BRISK", _x.BRISK_create, HAMMING),
-        DescriptorSpec("freak", "FREAK", _x.FREAK_create, HAMMING),
-        DescriptorSpec("daisy", "DAISY", _x.DAISY_create, L2, requires_orientation=True),
-        # Beyond the survey: learned binary descriptors shipped with OpenCV, KAZE, and the learned XFeat.
-        DescriptorSpec("beblid", "BEBLID", _x.BEBLID_create, HAMMING),
-        DescriptorSpec("teblid", "TEBLID", _x.TEBLID_create, HAMMING),
-        DescriptorSpec("kaze", "KAZE", _x.KAZE_create, L2, only_detectors=("kaze",)),
-        DescriptorSpec("xfeat", "XFeat", create_xfeat, L2, learned=True),
-    ]
-}
+DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
+    _descriptor("orb", "ORB", cv2.ORB_create, {"edgeThreshold": 31, "patchSize": 31, "WTA_K": 2}, norm=HAMMING,
+                excluded_detectors={"sift": _ORB_SCALES}),
+    # The survey's BRIEF uses the keypoint orientation (it collapses on unoriented keypoints for absolute pairs).
+    _descriptor("brief", "BRIEF", _x.BriefDescriptorExtractor_create, {"bytes": 32, "use_orientation": True},
+                norm=HAMMING),
+    _descriptor("latch", "LATCH", _x.LATCH_create,
+                {"bytes": 32, "rotationInvariance": True, "half_ssd_size": 3, "sigma": 2.0}, norm=HAMMING),
+    _descriptor("surf", "SURF", lazy_factory("gtsweep.stages.surf", "SURF_create"),
+                {"hessianThreshold": 100.0, "nOctaves": 4, "nOctaveLayers": 3, **_NONLINEAR}, norm=L2),
+    _descriptor("sift", "SIFT", cv2.SIFT_create, {"nOctaveLayers": 3, "sigma": 1.6}, norm=L2),
+    # descriptor_type 5 = DESCRIPTOR_MLDB
+    _descriptor("akaze", "AKAZE", _x.AKAZE_create,
+                {"descriptor_type": 5, "descriptor_size": 0, "descriptor_channels": 3}, norm=HAMMING,
+                only_detectors=("akaze",)),
+    _descriptor("brisk", "BRISK", _x.BRISK_create, {"thresh": 30, "octaves": 3, "patternScale": 1.0},
+                norm=HAMMING),
+    _descriptor("freak", "FREAK", _x.FREAK_create,
+                {"orientationNormalized": True, "scaleNormalized": True, "patternScale": 22.0, "nOctaves": 4},
+                norm=HAMMING),
+    # norm 100 = NRM_NONE
+    _descriptor("daisy", "DAISY", _x.DAISY_create,
+                {"radius": 15.0, "q_radius": 3, "q_theta": 8, "q_hist": 8, "norm": 100, "interpolation": True,
+                 "use_orientation": True}, norm=L2, requires_orientation=True),
+    # Beyond the survey: learned binary descriptors shipped with OpenCV, KAZE, and the learned XFeat.
+    _descriptor("beblid", "BEBLID", _x.BEBLID_create, {**_BLID, "n_bits": 100}, norm=HAMMING),  # 512 bits
+    _descriptor("teblid", "TEBLID", _x.TEBLID_create, {**_BLID, "n_bits": 102}, norm=HAMMING),  # 256 bits
+    _descriptor("kaze", "KAZE", _x.KAZE_create, _NONLINEAR, norm=L2, only_detectors=("kaze",)),
+    _descriptor("xfeat", "XFeat", lazy_factory("gtsweep.stages.xfeat", "XFeat_create"), {}, norm=L2,
+                learned=True),
+])
+
+#: The registry's lookup under its former name (callers outside the science layers still use it).
+get_descriptor = DESCRIPTORS.get
 
 #: Detectors whose keypoints carry an ``octave`` that the same-named descriptor understands.
 _OWN_OCTAVE = {"orb", "sift", "akaze", "kaze", "brisk", "surf"}
-
-
-def get_descriptor(name: str) -> DescriptorSpec:
-    """The registry entry for ``name``; :class:`UnknownMethod` lists the valid names otherwise."""
-    try:
-        return DESCRIPTORS[name]
-    except KeyError:
-        raise UnknownMethod("descriptor", name, DESCRIPTORS) from None
-
-
-def applicability(detector: str, descriptor: str) -> str | None:
-    """``None`` when ``descriptor`` can describe ``detector``'s keypoints, else the reason it cannot."""
-    det, desc = get_detector(detector), get_descriptor(descriptor)
-    if desc.only_detectors is not None and detector not in desc.only_detectors:
-        allowed = ", ".join(get_detector(d).label for d in desc.only_detectors)
-        return f"the {desc.label} descriptor only describes {allowed} keypoints"
-    if detector in desc.excluded_detectors:
-        return f"{desc.excluded_detectors[detector]}; {det.label} keypoints are not"
-    if desc.requires_orientation and not det.orientation:
-        return f"the {desc.label} descriptor needs oriented keypoints; {det.label} gives no orientation"
-    return None
 
 
 def descriptor_params(descriptor_cfg: dict, detector: str) -> dict:
@@ -114,7 +94,7 @@ def describe(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
 
     Returns ``(kept_keypoints, descriptors)``: descriptors may drop keypoints (e.g. near the border), so the
     returned keypoints are the ones aligned with the descriptor rows. Binary descriptors are uint8, real-valued
-    ones float32. Raises :class:`NotApplicable` for the survey's NA pairings.
+    ones float32. It does not judge the pairing: :mod:`gtsweep.stages.pairing` says which the survey calls NA.
     """
     kept, descriptors, _ = describe_timed(image, keypoints, name, detector, **params)
     return kept, descriptors
@@ -122,11 +102,8 @@ def describe(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
 
 def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str, **params):
     """:func:`describe` plus the wall time in seconds of the descriptor call itself."""
-    spec = get_descriptor(name)
-    reason = applicability(detector, name)
-    if reason is not None:
-        raise NotApplicable(reason)
-    extractor = build_method("descriptor", spec.name, spec.create, params)
+    spec = DESCRIPTORS.get(name)
+    extractor = spec.build(params)
     prepared = _prepare(keypoints, detector, name)
     if len(prepared) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), 0.0
@@ -134,8 +111,7 @@ def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector
     try:
         found, descriptors = extractor.compute(image, kp.to_keypoints(prepared))
     except cv2.error as e:
-        raise NotApplicable(f"the {spec.label} descriptor failed on {get_detector(detector).label} keypoints: "
-                            f"{first_line(e)}") from None
+        raise GtsweepError(f"descriptor '{name}' failed on {detector} keypoints: {reason_line(e)}") from None
     seconds = time.perf_counter() - start
     if descriptors is None or len(found) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), seconds

@@ -2,11 +2,14 @@
 
 Each detector declares what it gives: an orientation, a response (else the detection order substitutes for it,
 as the survey does for MSER, section 5.1), whether it honours a detection mask, and which of its parameters asks
-it for a number of keypoints (the survey set that number to 1000 where a detector has one).
-Adding a detector is one :class:`DetectorSpec` entry here and one YAML file in ``conf/detector/``.
+it for a number of keypoints (the survey set that number to 1000 where a detector has one). Its ``defaults`` are
+the parameters the survey's reproduction uses, in OpenCV's argument names.
+Adding a detector is one :class:`DetectorSpec` entry in :data:`DETECTORS` and one tiny YAML file in
+``conf/detector/`` (its search space, and ``params: {}`` or the values a user wants to differ).
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -14,88 +17,84 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
+from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
 from gtsweep.stages import keypoints as kp
 
 _x = cv2.xfeatures2d
 
 
-def create_surf(**params):
-    """SURF, imported on first use: OpenCV's when a nonfree build is installed, else gtsweep's NumPy port."""
-    from gtsweep.stages.surf import SURF_create
-
-    return SURF_create(**params)
-
-
-def create_xfeat(**params):
-    """XFeat, imported on first use: the learned feature, run by cv2.dnn."""
-    from gtsweep.stages.xfeat import XFeat_create
-
-    return XFeat_create(**params)
+@functools.lru_cache(maxsize=1)
+def probe_image() -> np.ndarray:
+    """A small textured image (smoothed noise) on which the pre-flight runs each detector once."""
+    noise = np.random.default_rng(0).random((240, 320)) * 255
+    return cv2.GaussianBlur(noise, (0, 0), 1.5).astype(np.uint8)
 
 
-@dataclass(frozen=True)
-class DetectorSpec:
-    """What a detector is and what it gives."""
+def _probe(detector) -> None:
+    detector.detect(probe_image(), None)
 
-    name: str
-    label: str  # as printed in the survey's tables
-    create: Callable[..., object]
+
+@dataclass(frozen=True, kw_only=True)
+class DetectorSpec(Method):
+    """A detector and what it gives."""
+
     orientation: bool
     response: bool = True
     mask: bool = True
     count_param: str | None = None  # parameter that asks the detector itself for N keypoints
     learned: bool = False
+    probe: Callable[[object], object] | None = _probe
 
 
-DETECTORS: dict[str, DetectorSpec] = {
-    s.name: s
-    for s in [
-        DetectorSpec("harris", "Harris", lambda **p: cv2.GFTTDetector_create(useHarrisDetector=True, **p),
-                     orientation=False, count_param="maxCorners"),
-        DetectorSpec("gftt", "GFTT", cv2.GFTTDetector_create, orientation=False, count_param="maxCorners"),
-        DetectorSpec("fast", "FAST", cv2.FastFeatureDetector_create, orientation=False),
-        DetectorSpec("agast", "AGAST", _x.AgastFeatureDetector_create, orientation=False),
-        # HarrisLaplace reports angle 0 for every keypoint: it has no orientation.
-        DetectorSpec("harris_laplace", "HarrisLaplace", _x.HarrisLaplaceFeatureDetector_create, orientation=False,
-                     count_param="maxCorners"),
-        DetectorSpec("sift", "SIFT", cv2.SIFT_create, orientation=True, count_param="nfeatures"),
-        DetectorSpec("surf", "SURF", create_surf, orientation=True),
-        DetectorSpec("censure", "CenSurE", _x.StarDetector_create, orientation=False),
-        DetectorSpec("brisk", "BRISK", _x.BRISK_create, orientation=True),
-        DetectorSpec("orb", "ORB", cv2.ORB_create, orientation=True, count_param="nfeatures"),
-        DetectorSpec("akaze", "AKAZE", _x.AKAZE_create, orientation=True),
-        # KAZE computes orientations only when describing: its detect() reports angle 0.
-        DetectorSpec("kaze", "KAZE", _x.KAZE_create, orientation=False),
-        # MSER has no response: the detection order substitutes for it (first found = largest), as in the survey.
-        DetectorSpec("mser", "MSER", cv2.MSER_create, orientation=False, response=False),
-        DetectorSpec("msd", "MSD", _x.MSDDetector_create, orientation=False),
-        DetectorSpec("xfeat", "XFeat", create_xfeat, orientation=False, learned=True, count_param="top_k"),
-    ]
-}
+_detector = functools.partial(DetectorSpec, "detector")
+_GFTT = {"maxCorners": 1000, "qualityLevel": 0.001, "minDistance": 1.0, "blockSize": 3}
+_NONLINEAR = {"threshold": 0.001, "nOctaves": 4, "nOctaveLayers": 4, "diffusivity": 1}  # AKAZE's and KAZE's
 
+DETECTORS: Registry[DetectorSpec] = Registry("detector", [
+    _detector("harris", "Harris", lambda **p: cv2.GFTTDetector_create(useHarrisDetector=True, **p),
+              {**_GFTT, "k": 0.04}, orientation=False, count_param="maxCorners"),
+    _detector("gftt", "GFTT", cv2.GFTTDetector_create, _GFTT, orientation=False, count_param="maxCorners"),
+    _detector("fast", "FAST", cv2.FastFeatureDetector_create,  # type 2 = TYPE_9_16
+              {"threshold": 10, "nonmaxSuppression": True, "type": 2}, orientation=False),
+    _detector("agast", "AGAST", _x.AgastFeatureDetector_create,  # type 3 = OAST_9_16
+              {"threshold": 10, "nonmaxSuppression": True, "type": 3}, orientation=False),
+    # HarrisLaplace reports angle 0 for every keypoint: it has no orientation.
+    _detector("harris_laplace", "HarrisLaplace", _x.HarrisLaplaceFeatureDetector_create,
+              {"numOctaves": 6, "corn_thresh": 0.01, "DOG_thresh": 0.01, "maxCorners": 5000, "num_layers": 4},
+              orientation=False, count_param="maxCorners"),
+    _detector("sift", "SIFT", cv2.SIFT_create,  # nfeatures 0 = all; selection reduces to N afterwards
+              {"nfeatures": 0, "nOctaveLayers": 3, "contrastThreshold": 0.04, "edgeThreshold": 10.0, "sigma": 1.6},
+              orientation=True, count_param="nfeatures"),
+    _detector("surf", "SURF", lazy_factory("gtsweep.stages.surf", "SURF_create"),
+              {"hessianThreshold": 100.0, "nOctaves": 4, "nOctaveLayers": 3, "extended": False, "upright": False},
+              orientation=True),
+    _detector("censure", "CenSurE", _x.StarDetector_create,
+              {"maxSize": 45, "responseThreshold": 30, "lineThresholdProjected": 10, "lineThresholdBinarized": 8,
+               "suppressNonmaxSize": 5}, orientation=False),
+    _detector("brisk", "BRISK", _x.BRISK_create, {"thresh": 30, "octaves": 3, "patternScale": 1.0},
+              orientation=True),
+    _detector("orb", "ORB", cv2.ORB_create,
+              {"nfeatures": 1000, "scaleFactor": 1.2, "nlevels": 8, "edgeThreshold": 31, "fastThreshold": 20},
+              orientation=True, count_param="nfeatures"),
+    _detector("akaze", "AKAZE", _x.AKAZE_create, _NONLINEAR, orientation=True),
+    # KAZE computes orientations only when describing: its detect() reports angle 0.
+    _detector("kaze", "KAZE", _x.KAZE_create, _NONLINEAR, orientation=False),
+    # MSER has no response: the detection order substitutes for it (first found = largest), as in the survey.
+    _detector("mser", "MSER", cv2.MSER_create,
+              {"delta": 5, "min_area": 60, "max_area": 14400, "max_variation": 0.25},
+              orientation=False, response=False),
+    _detector("msd", "MSD", _x.MSDDetector_create,
+              {"m_patch_radius": 3, "m_search_area_radius": 5, "m_nms_radius": 5, "m_nms_scale_radius": 0,
+               "m_th_saliency": 250.0, "m_kNN": 4, "m_scale_factor": 1.25, "m_n_scales": -1,
+               "m_compute_orientation": False}, orientation=False),
+    _detector("xfeat", "XFeat", lazy_factory("gtsweep.stages.xfeat", "XFeat_create"),
+              {"top_k": 1000, "detection_threshold": 0.05, "keypoint_size": 8.0},
+              orientation=False, learned=True, count_param="top_k"),
+])
 
-def get_detector(name: str) -> DetectorSpec:
-    """The registry entry for ``name``; :class:`UnknownMethod` lists the valid names otherwise."""
-    try:
-        return DETECTORS[name]
-    except KeyError:
-        raise UnknownMethod("detector", name, DETECTORS) from None
-
-
-def build_method(family: str, name: str, factory: Callable[..., object], params: dict):
-    """``factory(**params)``; a method that is not installed or rejects its parameters is a one-line error."""
-    try:
-        return factory(**params)
-    except ImportError as e:
-        raise GtsweepError(f"{family} '{name}' is not available: {e}") from None
-    except (TypeError, cv2.error) as e:
-        raise BadInput(f"{family} '{name}' rejects its parameters {params}: {first_line(e)}") from None
-
-
-def create_detector(name: str, **params):
-    """An OpenCV-style detector object for ``name`` built with ``params`` (OpenCV's argument names)."""
-    return build_method("detector", name, get_detector(name).create, params)
+#: The registry's lookup under its former name (callers outside the science layers still use it).
+get_detector = DETECTORS.get
 
 
 def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> np.ndarray:
@@ -109,16 +108,16 @@ def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **param
 
 def detect_timed(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> tuple[np.ndarray, float]:
     """:func:`detect` plus the wall time in seconds of the detector call itself."""
-    spec = get_detector(name)
+    spec = DETECTORS.get(name)
     _check_image(image)
-    detector = create_detector(name, **params)
+    detector = spec.build(params)
     if mask is not None and not spec.mask:
         raise GtsweepError(f"detector '{name}' does not accept a detection mask")
     start = time.perf_counter()
     try:
         found = detector.detect(image, mask)
     except cv2.error as e:
-        raise GtsweepError(f"detector '{name}' failed: {first_line(e)}") from None
+        raise GtsweepError(f"detector '{name}' failed: {reason_line(e)}") from None
     seconds = time.perf_counter() - start
     array = kp.to_array(found)
     if not spec.response and len(array):
@@ -132,8 +131,3 @@ def _check_image(image: np.ndarray) -> None:
     if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
         raise BadInput("images must be 2-D uint8 gray arrays")
 
-
-def first_line(error: Exception) -> str:
-    """The last non-empty line of an error message (OpenCV puts the reason there)."""
-    lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()]
-    return lines[-1] if lines else type(error).__name__

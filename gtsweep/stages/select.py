@@ -6,14 +6,13 @@ the inputs (no randomness).
 """
 from __future__ import annotations
 
-import inspect
 import math
-from typing import Callable
 
 import numpy as np
 
-from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.stages.keypoints import COLUMNS, RESPONSE, X, Y, sort_by_response
+from gtsweep.core.errors import BadInput
+from gtsweep.core.registry import Method, Registry, function_defaults, partial_factory
+from gtsweep.stages.keypoints import COLUMNS, RESPONSE, X, Y, empty, sort_by_response
 
 
 def _check_keypoints(keypoints) -> np.ndarray:
@@ -167,21 +166,20 @@ def select_bucketing(keypoints, image_shape, rows: int = 8, cols: int = 6, per_c
     return kps[keep]
 
 
-SELECTORS: dict[str, Callable[..., np.ndarray]] = {
-    "none": select_none,
-    "nms": select_nms,
-    "anms": select_anms,
-    "bucketing": select_bucketing,
-}
+def _selector(name: str, label: str, function) -> Method:
+    """A selector function as a registry entry; its pre-flight selects from no keypoints (checks the values)."""
+    return Method("selector", name, label, partial_factory(function), function_defaults(function, 2),
+                  probe=lambda selector: selector(empty(), (1, 1)))
+
+
+SELECTORS: Registry[Method] = Registry("selector", [
+    _selector("none", "w/o selection", select_none),
+    _selector("nms", "NMS", select_nms),
+    _selector("anms", "ANMS", select_anms),
+    _selector("bucketing", "Bucketing", select_bucketing),
+])
 
 
 def select(keypoints, name: str, image_shape, **params) -> np.ndarray:
     """Apply the selector registered as ``name`` (see :data:`SELECTORS`) with its keyword parameters."""
-    if name not in SELECTORS:
-        raise UnknownMethod("selector", name, SELECTORS)
-    selector = SELECTORS[name]
-    accepted = set(inspect.signature(selector).parameters) - {"keypoints", "image_shape"}
-    unknown = sorted(set(params) - accepted)
-    if unknown:
-        raise BadInput(f"selector '{name}' has no parameter(s) {', '.join(unknown)}")
-    return selector(keypoints, image_shape, **params)
+    return SELECTORS.get(name).build(params)(keypoints, image_shape)
