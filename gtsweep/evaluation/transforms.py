@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput
+from gtsweep.core.ranges import Range
 from gtsweep.core.registry import Method, Registry, function_defaults, partial_factory
 
 
@@ -37,16 +38,20 @@ def _check_image(image) -> np.ndarray:
     return image
 
 
-def _check_range(name: str, value, low: float, high: float, low_open: bool = False) -> float:
-    try:
+#: Allowed strengths of each synthetic transform (checked per strength before a sweep starts, and by the functions).
+STRENGTH_RANGES = {
+    "rotation": Range(-360.0, 360.0),             # angle in degrees
+    "translation": Range(0.0, 1.0, low_open=True),  # IoU of reference and test masks
+    "noise": Range(0.0, 255.0),                    # sigma in gray levels
+    "gamma": Range(0.0, 10.0, low_open=True),
+}
+_MASK_FRACTION = Range(0.0, 1.0, low_open=True)
+
+
+def _check_range(name: str, value, allowed: Range) -> float:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = float(value)
-    except (TypeError, ValueError):
-        raise BadInput(f"{name} must be a number, got {value!r}") from None
-    below = value <= low if low_open else value < low
-    if not math.isfinite(value) or below or value > high:
-        bracket = "(" if low_open else "["
-        raise BadInput(f"{name} must lie in {bracket}{low:g}, {high:g}], got {value:g}")
-    return value
+    return allowed.check(name, value)
 
 
 def _full_mask(image: np.ndarray) -> np.ndarray:
@@ -82,7 +87,7 @@ def rotate(image, angle_deg: float, border: int = 3) -> ViewPair:
     detectors do not fire on the edges of the black corners; the reference mask is full.
     """
     image = _check_image(image)
-    angle = _check_range("rotation angle (degrees)", angle_deg, -360.0, 360.0)
+    angle = _check_range("rotation angle (degrees)", angle_deg, STRENGTH_RANGES["rotation"])
     if isinstance(border, bool) or not isinstance(border, (int, np.integer)) or border < 0:
         raise BadInput(f"border must be a non-negative integer, got {border!r}")
     height, width = image.shape
@@ -153,8 +158,8 @@ def translate(image, iou: float, mask_fraction: float = 0.7) -> ViewPair:
     masks' IoU is ``iou``; ``H`` is the identity. Raises BadInput if the pair does not fit the image.
     """
     image = _check_image(image)
-    iou = _check_range("translation IoU", iou, 0.0, 1.0, low_open=True)
-    mask_fraction = _check_range("mask_fraction", mask_fraction, 0.0, 1.0, low_open=True)
+    iou = _check_range("translation IoU", iou, STRENGTH_RANGES["translation"])
+    mask_fraction = _check_range("mask_fraction", mask_fraction, _MASK_FRACTION)
     reference_mask, test_mask, _ = translation_masks(image.shape, iou, mask_fraction)
     return ViewPair(image, reference_mask, image.copy(), test_mask, np.eye(3), "translation", iou)
 
@@ -162,7 +167,7 @@ def translate(image, iou: float, mask_fraction: float = 0.7) -> ViewPair:
 def add_noise(image, sigma: float, seed: int = 0) -> ViewPair:
     """Zero-mean i.i.d. Gaussian noise: test = clip(round(image + N(0, sigma)), 0, 255) (survey section 3)."""
     image = _check_image(image)
-    sigma = _check_range("noise sigma", sigma, 0.0, 255.0)
+    sigma = _check_range("noise sigma", sigma, STRENGTH_RANGES["noise"])
     noise = np.random.default_rng(seed).normal(0.0, sigma, image.shape)
     test = np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)
     return _photometric_pair(image, test, "noise", sigma)
@@ -177,7 +182,7 @@ def gamma_table(gamma: float) -> np.ndarray:
 def adjust_gamma(image, gamma: float) -> ViewPair:
     """Illumination change by gamma correction (survey section 3); ``H`` is the identity, masks full."""
     image = _check_image(image)
-    gamma = _check_range("gamma", gamma, 0.0, 10.0, low_open=True)
+    gamma = _check_range("gamma", gamma, STRENGTH_RANGES["gamma"])
     return _photometric_pair(image, gamma_table(gamma)[image], "gamma", gamma)
 
 
@@ -186,13 +191,19 @@ class TransformSpec(Method):
     """A synthetic transform ``function(image, strength, **params)``; a ``seeded`` one also takes ``seed``."""
 
     seeded: bool = False
+    strength: Range = Range()
+
+    def check_strength(self, where: str, value) -> float:
+        """``value`` if it is an allowed strength, else a one-line BadInput naming ``where``."""
+        return self.strength.check(where, value)
 
 
 def _transform(name: str, label: str, function) -> TransformSpec:
     defaults = function_defaults(function, 2)
     seeded = "seed" in defaults
     defaults.pop("seed", None)  # the seed comes from synthesize(), per image and strength, not from a config
-    return TransformSpec("transform", name, label, partial_factory(function), defaults, seeded=seeded)
+    return TransformSpec("transform", name, label, partial_factory(function), defaults, seeded=seeded,
+                         strength=STRENGTH_RANGES[name])
 
 
 TRANSFORMS: Registry[TransformSpec] = Registry("transform", [

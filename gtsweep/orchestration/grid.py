@@ -14,6 +14,7 @@ from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
+from gtsweep.orchestration.settings import check_settings
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.pairing import applicability
@@ -136,12 +137,14 @@ def _check_transform(name: str, settings: dict) -> None:
     strengths = settings.get("strengths")
     if not isinstance(strengths, list) or not strengths:
         raise BadInput(f"transform.{name}.strengths must be a non-empty list of numbers")
-    if not all(isinstance(s, (int, float)) and not isinstance(s, bool) for s in strengths):
-        raise BadInput(f"transform.{name}.strengths must be numbers, got {strengths}")
+    spec = TRANSFORMS.get(name)
+    for strength in strengths:
+        spec.check_strength(f"transform.{name}.strengths: {strength!r}; each strength", strength)
 
 
 def build_grid(cfg: Mapping) -> Grid:
-    """The cells of the sweep described by ``cfg`` (the composed Hydra config)."""
+    """The cells of the sweep described by ``cfg`` (the composed Hydra config); every setting checked first."""
+    check_settings(cfg)
     experiment = plain(cfg.get("experiment")) or {}
     if experiment.get("name") not in EXPERIMENTS:
         raise BadInput(f"experiment must be one of {', '.join(EXPERIMENTS)}, got {experiment.get('name')!r}")

@@ -1,0 +1,44 @@
+"""The run settings a sweep reads (experiment, runner, seed) with their allowed values, declared once.
+
+:func:`check_settings` runs before any work: a value outside its range is one line and exit code 2, never a
+cell labelled "not applicable" or an "ok" cell with wrong numbers (``experiment.ratio=0`` would keep no match).
+Method parameters and transform strengths are checked by their registries (:mod:`gtsweep.core.registry`).
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+from gtsweep.core.config import plain
+from gtsweep.core.ranges import Choice, ListOf, Range, check_all
+
+_COUNT = Range(1, None, integer=True)
+_POSITIVE = Range(0, None, low_open=True)
+
+SETTINGS = {
+    "seed": Range(0, None, integer=True),
+    "experiment.iou_threshold": Range(0, 1, low_open=True, high_open=True),
+    "experiment.min_keypoints": _COUNT,
+    "experiment.ratio": Range(0, 1, low_open=True),
+    "experiment.mutual": Choice((True, False)),
+    "experiment.pose.model": Choice(("similarity", "euclidean")),
+    "experiment.pose.iterations": _COUNT,
+    "experiment.pose.threshold": _POSITIVE,
+    "experiment.pose.max_position_error": _POSITIVE,
+    "experiment.pose.max_orientation_error": Range(0, 180, low_open=True),
+    "experiment.reference_counts": ListOf(_COUNT, optional=True),
+    "experiment.test_count": Range(1, None, integer=True, optional=True),
+    "runner.backend": Choice(("ray", "serial")),
+    "runner.num_cpus": Range(1, None, integer=True, optional=True),
+    "runner.shard_size": _COUNT,
+    "runner.opencv_threads": Range(1, None, integer=True, optional=True),
+    "runner.progress": Choice((True, False)),
+    "cache.enabled": Choice((True, False)),
+    "mlflow.enabled": Choice((True, False)),
+    "report.plots": Choice((True, False)),
+}
+
+
+def check_settings(cfg: Mapping) -> None:
+    """Raise a one-line BadInput for the first run setting of ``cfg`` outside its allowed values."""
+    values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")}
+    check_all(values, SETTINGS)
