@@ -67,6 +67,12 @@ class Grid:
         return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
 
 
+# replaced by the registry helper
+def resolve_group(cfg: Mapping, group: str) -> dict[str, dict]:
+    """``{name: config}`` of a method group as composed (search spaces included)."""
+    return dict(plain(cfg.get(group)) or {})
+
+
 #: Keys of a method config that do not change its results (the optimiser's search space).
 NOT_RESULTS = ("search_space",)
 
