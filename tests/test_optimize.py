@@ -14,16 +14,13 @@ from sweep_helpers import compose_config, run_cli, tiny_overrides
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
-from gtsweep.optimize.driver import (
-    Target,
-    build_targets,
-    main,
-    open_study,
-    read_settings,
-    tuned_node,
-)
-from gtsweep.optimize.objective import summarize
+from gtsweep.optimize.driver import main
+from gtsweep.optimize.objective import trial_metrics
+from gtsweep.optimize.output import tuned_node
 from gtsweep.optimize.search_space import parse_space
+from gtsweep.optimize.settings import read_settings
+from gtsweep.optimize.study import open_study
+from gtsweep.optimize.targets import Target, build_targets
 from gtsweep.orchestration.grid import build_grid
 
 FAST = ["experiment=optimize", "detector=[fast]", "runner.backend=serial", "experiment.n_startup_trials=2",
@@ -173,7 +170,7 @@ def test_score_is_lexicographic():
     rows = {"rotation": [{"repeatability": 0.9, "few_keypoints": 1.0, "n_keypoints": 50.0},
                          {"repeatability": 0.9, "few_keypoints": 0.0, "n_keypoints": 500.0}],
             "noise": [{"repeatability": 0.5, "few_keypoints": 0.0, "n_keypoints": 400.0}]}
-    metrics = summarize(rows, "repeatability")
+    metrics = trial_metrics(rows, "repeatability")
     assert math.isclose(metrics["repeatability"], 0.7) and metrics["n_few"] == 1 and metrics["few_share"] == 1 / 3
     assert math.isclose(metrics["score"], 0.7 - 1)  # any view below N outweighs any repeatability gain
 

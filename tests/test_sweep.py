@@ -1,6 +1,7 @@
 """The sweep end to end: detection reuse and caching, kill and resume, a two-node Ray cluster, the CLI."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -17,7 +18,7 @@ from sweep_helpers import (
     tiny_overrides,
 )
 
-from gtsweep.orchestration import tasks
+from gtsweep.orchestration import cache
 from gtsweep.orchestration.sweep import run_sweep
 
 SERIAL = "runner.backend=serial"
@@ -25,13 +26,13 @@ SERIAL = "runner.backend=serial"
 
 def _count_detections(monkeypatch) -> list:
     calls = []
-    original = tasks.detect_and_select
+    original = cache.detect_and_select
 
     def counting(image, mask, detector, *args):
         calls.append((image.tobytes(), None if mask is None else mask.tobytes(), detector, *map(repr, args)))
         return original(image, mask, detector, *args)
 
-    monkeypatch.setattr(tasks, "detect_and_select", counting)
+    monkeypatch.setattr(cache, "detect_and_select", counting)
     return calls
 
 
@@ -51,13 +52,26 @@ def test_detection_is_computed_once_and_cached(tmp_path, monkeypatch):
     assert_same_cells(tmp_path / "run1", tmp_path / "run2")
 
 
-def test_na_cells_and_unavailable_methods_do_not_stop_the_sweep(tmp_path):
-    grid = ["detector=[censure]", "descriptor=[akaze,daisy,brief]", "selector=[nms]", "transform=[incremental]",
-            "mlflow.enabled=false"]
+def test_na_cells_and_unavailable_methods_do_not_stop_the_sweep(tmp_path, monkeypatch):
+    from gtsweep.stages import describe
+
+    def not_installed(**params):
+        raise ImportError("No module named 'nonfree_sift'")
+
+    original = describe.get_descriptor
+    monkeypatch.setattr(describe, "get_descriptor", lambda name: dataclasses.replace(
+        original(name), create=not_installed) if name == "sift" else original(name))
+    grid = ["detector=[censure]", "descriptor=[akaze,daisy,brief,latch,sift]", "selector=[nms]",
+            "transform=[incremental]", "descriptor.latch.params.bytes=3", "mlflow.enabled=false"]
     outcome = run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "run")
     status = {s["methods"]["descriptor"]: (s["status"], s.get("reason") or "") for s in outcome.summaries}
+    # NA: the survey's pairing rules; error: a method that cannot run here, a parameter OpenCV rejects
     assert status["akaze"][0] == status["daisy"][0] == "na" and "orientation" in status["daisy"][1]
     assert status["brief"][0] == "ok"
+    assert status["sift"] == ("error", "descriptor 'sift' is not available: No module named 'nonfree_sift'")
+    assert status["latch"][0] == "error" and "descriptorSize must be" in status["latch"][1]
+    assert "\n" not in status["latch"][1] and sorted(outcome.failed) == sorted(
+        s["key"] for s in outcome.summaries if s["methods"]["descriptor"] in ("latch", "sift"))
     results = (tmp_path / "run" / "results.csv").read_text()
     assert "only describes AKAZE keypoints" in results
 

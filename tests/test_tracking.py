@@ -17,7 +17,8 @@ from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.sweep import run_sweep
-from gtsweep.tracking.sweep import SweepTracker, flatten, step_scale
+from gtsweep.tracking.store import flatten
+from gtsweep.tracking.sweep import SweepTracker, step_scale
 
 GRID = ["detector=[akaze,censure]", "descriptor=[akaze,brief]", "selector=[nms]",
         "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]

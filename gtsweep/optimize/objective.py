@@ -14,106 +14,68 @@ Optuna maximises. ``few_share = n_few / n_views`` is reported beside it.
 ``pose_success`` (descriptor parameters, keypoints fixed): the share of views whose RANSAC pose is within the
 success thresholds, averaged per transform type like repeatability; score = pose_success.
 
-Plain data in, plain dict out: the driver runs :func:`evaluate` in-process or as a Ray task.
+A trial runs the sweep's work units (:mod:`gtsweep.orchestration.tasks`) on the optimisation shards, in one
+task: plain data in, plain dict out; the executor runs :func:`evaluate` in-process or as a Ray task.
 """
 from __future__ import annotations
 
-import hashlib
 import math
 import time
-import traceback
-
-import numpy as np
 
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.seeds import stable_seed
-from gtsweep.evaluation.evaluate import (
-    detect_and_select,
-    detection_metrics,
-    pairing_metrics,
-)
-from gtsweep.evaluation.views import views
-from gtsweep.orchestration.cache import KeypointCache, detection_key, library_versions
+from gtsweep.orchestration import tasks
+from gtsweep.orchestration.cache import KeypointCache
+from gtsweep.orchestration.executor import describe_error
+from gtsweep.orchestration.shards import shard_kind
 
 OBJECTIVES = ("repeatability", "pose_success")
-
-
-class Detections:
-    """Detect-and-select with a memo per image and mask (references repeat across strengths), and optionally the
-    on-disk keypoint cache (the pose objective detects with fixed parameters in every trial)."""
-
-    def __init__(self, detector: str, params: dict, selector: str, selector_params: dict,
-                 cache_dir: str | None = None):
-        self.method = (detector, params, selector, selector_params)
-        self.cache = KeypointCache(cache_dir) if cache_dir else None
-        self.versions = library_versions() if cache_dir else None
-        self.memo: dict[bytes, np.ndarray] = {}
-
-    def __call__(self, image: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        digest = hashlib.blake2b(image.tobytes() + mask.tobytes() + str(image.shape).encode(), digest_size=16)
-        key = digest.digest()
-        if key not in self.memo:
-            detector, params, selector, selector_params = self.method
-            found = None
-            if self.cache is not None:
-                cache_key = detection_key(image, mask, detector, {"params": params}, selector,
-                                          {"params": selector_params}, self.versions)
-                found = self.cache.get(cache_key)
-            if found is None:
-                found = detect_and_select(image, mask, detector, params, selector, selector_params)
-                if self.cache is not None:
-                    self.cache.put(cache_key, *found)
-            self.memo[key] = found[0]
-        return self.memo[key]
+#: What a trial keeps of a pairing row, beside repeatability, few_keypoints and n_keypoints.
+PAIRING_KEYS = ("pose_success", "precision", "n_matches", "n_correct")
 
 
 def evaluate(shards: dict, job: dict) -> dict:
     """Score one parameter set; ``{"metrics": {...}}`` or ``{"error": reason}``.
 
-    ``shards``: ``{"synthetic": shard, "pairs": shard}`` (:func:`gtsweep.evaluation.views.make_shard`). ``job``: objective,
-    detector, detector_params, descriptor, descriptor_params, selector, selector_params, transforms, settings
-    (min_keypoints, iou_threshold, ratio, mutual, pose), seed and cache_dir.
+    ``shards``: :func:`gtsweep.orchestration.shards.load_shards`'s. ``job``: objective, detector, detector_params,
+    descriptor, descriptor_params, selector, selector_params, transforms, settings (min_keypoints, iou_threshold,
+    ratio, mutual, pose), seed and cache_dir.
     """
     start = time.perf_counter()
     try:
-        rows = _rows(shards, job)
-    except GtsweepError as e:  # a parameter set the method rejects: this trial fails, the study goes on
-        return {"error": str(e)}
-    except Exception as e:  # a bug: reported with the trial
-        where = traceback.extract_tb(e.__traceback__)[-1]
-        return {"error": f"{type(e).__name__}: {e} (at {where.filename}:{where.lineno})"}
-    metrics = summarize(rows, job["objective"])
+        metrics = trial_metrics(_rows(shards, job), job["objective"])
+    except Exception as e:  # a parameter set the method rejects, or a bug: this trial fails, the study goes on
+        return {"error": describe_error(e)}
     metrics["seconds"] = time.perf_counter() - start
     return {"metrics": metrics}
 
 
 def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
-    """Per transform, one row of numbers per view."""
+    """Per transform, one row of numbers per view. Detections are cached in memory for the trial (references
+    repeat across transforms and strengths), for the pose objective on disk too (its trials all detect with the
+    same parameters)."""
     settings, seed = job["settings"], job["seed"]
     pose = job["objective"] == "pose_success"
-    detect = Detections(job["detector"], job["detector_params"], job["selector"], job["selector_params"],
-                        job.get("cache_dir") if pose else None)
+    cache = KeypointCache(job.get("cache_dir") if pose else None)
     experiment = {"name": "pose", "ratio": settings.get("ratio", 0.7), "mutual": bool(settings.get("mutual")),
-                  "iou_threshold": settings["iou_threshold"], "pose": settings.get("pose")}
+                  "iou_threshold": settings["iou_threshold"], "min_keypoints": settings["min_keypoints"],
+                  "pose": settings.get("pose")}
+    method = {"detector": job["detector"], "detector_cfg": {"params": job["detector_params"]},
+              "selector": job["selector"], "selector_cfg": {"params": job["selector_params"]}}
     rows: dict[str, list[dict]] = {}
     for name, transform_cfg in job["transforms"].items():
-        shard = shards["pairs" if transform_cfg["kind"] == "pairs" else "synthetic"]
         rows[name] = []
-        for meta, view in views(shard, name, transform_cfg, seed):
-            ref = detect(view.reference, view.reference_mask)
-            test = detect(view.test, view.test_mask)
-            found = detection_metrics(view, ref, test, settings["iou_threshold"], settings["min_keypoints"])
-            row = {"repeatability": found["repeatability"], "few_keypoints": found["few_keypoints"],
-                   "n_keypoints": float(len(test))}
+        for shard in shards[shard_kind(name, transform_cfg)]:
+            keypoints, found = tasks.detect_views(cache, shard, name, transform_cfg, method, experiment, seed)
             if pose:
-                paired = pairing_metrics(view, ref, test, job["descriptor"], job["descriptor_params"],
-                                         job["detector"], experiment, seed=stable_seed(seed, meta["view"]))
-                row.update({k: paired[k] for k in ("pose_success", "precision", "n_matches", "n_correct")})
-            rows[name].append(row)
+                found = tasks.pair_views(shard, name, transform_cfg, keypoints, found, job["detector"],
+                                         job["descriptor"], job["descriptor_params"], experiment, seed)
+            rows[name] += [{"repeatability": row["repeatability"], "few_keypoints": row["few_keypoints"],
+                            "n_keypoints": float(row["n_kp_test"]), **{k: row[k] for k in PAIRING_KEYS if pose}}
+                           for row in found]
     return rows
 
 
-def summarize(rows: dict[str, list[dict]], objective: str) -> dict:
+def trial_metrics(rows: dict[str, list[dict]], objective: str) -> dict:
     """Metrics of a trial from its rows: means per transform type, their mean, n_few, few_share and the score."""
     if not any(rows.values()):
         raise GtsweepError("no views to evaluate: the optimisation split is empty")

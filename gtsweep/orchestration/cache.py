@@ -1,5 +1,7 @@
 """A content-addressed keypoint cache on disk: each detection is computed once and reused by every descriptor.
 
+:func:`detect_cached` is the one way a task detects (the sweep's detection tasks and the optimiser's trials).
+
 The key hashes everything that determines a detection: the image bytes, the detection mask, the detector and
 selector with their parameters, and the library versions. One ``.npz`` file per entry (parallel writers never share
 a file), written to a temporary name and renamed into place, so a reader sees a whole entry or none.
@@ -12,11 +14,14 @@ import os
 from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
+from typing import Mapping
 
 import cv2
 import numpy as np
 
 from gtsweep.core.atomic import write_atomically
+from gtsweep.core.config import plain
+from gtsweep.evaluation.evaluate import detect_and_select
 
 
 @lru_cache(maxsize=1)
@@ -84,3 +89,20 @@ class KeypointCache:
             return
         write_atomically(self._path(key), lambda f: np.savez_compressed(f, keypoints=keypoints,
                                                                          n_detected=n_detected, seconds=seconds))
+
+
+def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | None, detector: str,
+                  detector_params: dict, selector: str, selector_params: dict):
+    """Detect and select through ``cache``: ``(keypoints, n_detected, seconds)``; a miss is one detector call."""
+    key = detection_key(image, mask, detector, {"params": detector_params}, selector, {"params": selector_params})
+    found = cache.get(key)
+    if found is None:
+        found = detect_and_select(image, mask, detector, detector_params, selector, selector_params)
+        cache.put(key, *found)
+    return found
+
+
+def cache_directory(cfg: Mapping) -> str | None:
+    """The keypoint cache's absolute directory (``cache.dir``), or None when ``cache.enabled`` is false."""
+    cache_cfg = plain(cfg.get("cache")) or {}
+    return str(Path(cache_cfg["dir"]).resolve()) if cache_cfg.get("enabled", True) else None

@@ -81,8 +81,9 @@ class Grid:
 NOT_RESULTS = ("search_space",)
 
 
-def resolve_group(cfg: Mapping, group: str) -> dict[str, dict]:
-    """The options of grid group ``group`` as ``{name: node}``, sorted, without keys that do not change results.
+def resolve_group(cfg: Mapping, group: str, search_space: bool = False) -> dict[str, dict]:
+    """The options of grid group ``group`` as ``{name: node}``, sorted, without keys that do not change results
+    (the optimiser asks for the ``search_space`` too).
 
     A node's ``params`` are its YAML params merged strictly onto the method's registry defaults, and the method is
     built once with them (pre-flight); a descriptor once per detector of ``cfg`` with that detector's
@@ -98,7 +99,7 @@ def resolve_group(cfg: Mapping, group: str) -> dict[str, dict]:
         settings = node[name]
         if not isinstance(settings, dict):
             raise BadInput(f"{group}.{name} must be a mapping with 'params', got {settings!r}")
-        settings = {k: v for k, v in settings.items() if k not in NOT_RESULTS}
+        settings = {k: v for k, v in settings.items() if search_space or k not in NOT_RESULTS}
         if group == "transform":
             _check_transform(name, settings)
             if settings["kind"] == "pairs":

@@ -14,9 +14,12 @@ import pandas as pd
 
 from gtsweep.core.config import plain
 from gtsweep.datasets import load_dataset
+from gtsweep.orchestration.cache import cache_directory
+from gtsweep.orchestration.executor import backend
 from gtsweep.orchestration.grid import Cell, Grid, build_grid
 from gtsweep.orchestration.results import ResultStore, summarize
-from gtsweep.orchestration.runner import RunStats, load_shards, plan, run
+from gtsweep.orchestration.runner import RunStats, plan, run
+from gtsweep.orchestration.shards import load_shards
 
 #: Called as ``hook(cell, summary, rows)`` for every cell as it finishes, and for cells kept from an earlier run
 #: (rows None for those and for NA cells).
@@ -52,6 +55,8 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete there (same config) are kept."""
     start = time.perf_counter()
     grid = build_grid(cfg)
+    runner_cfg = plain(cfg.get("runner")) or {}
+    backend(runner_cfg)  # checked before the data set is loaded
     dataset = load_dataset(cfg["dataset"])
     fingerprint = dataset.fingerprint()
     seed = int(cfg.get("seed", 0))
@@ -80,17 +85,14 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
             not_applicable.append(cell)
         else:
             pending.add(cell.key)
-    runner_cfg = plain(cfg.get("runner")) or {}
     # Load (and so check) every image before the first result file is written: bad data stops the run clean.
-    shards = load_shards(dataset, grid, int(runner_cfg.get("shard_size", 4))) if pending else {}
+    shards = load_shards(dataset, grid.transforms, int(runner_cfg.get("shard_size", 4))) if pending else {}
     for cell in not_applicable:
         finish(cell, {"na": cell.na_reason})
     stats = RunStats()
     if pending:
         jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
-        cache_cfg = plain(cfg.get("cache")) or {}
-        cache_dir = str(Path(cache_cfg["dir"]).resolve()) if cache_cfg.get("enabled", True) else None
-        stats = run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish)
+        stats = run(grid, shards, jobs, runner_cfg, seed, cache_directory(cfg), finish)
     ordered = [summaries[cell.key] for cell in grid.cells]
     outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],

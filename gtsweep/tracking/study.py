@@ -12,8 +12,7 @@ import sys
 import time
 from typing import Mapping
 
-from gtsweep.core.errors import BadInput
-from gtsweep.tracking.sweep import flatten, git_commit, tracking_uri
+from gtsweep.tracking.store import experiment_id, flatten, git_commit, tracking_uri
 
 STUDY_TAG, STORAGE_TAG, ROLE_TAG, TRIAL_TAG = "gtsweep.study", "gtsweep.storage", "gtsweep.role", "gtsweep.trial"
 
@@ -41,12 +40,7 @@ class StudyTracker:
         self.uri = tracking_uri(mlflow_cfg)
         self.client = MlflowClient(self.uri)
         self.settings = settings
-        name = (mlflow_cfg or {}).get("experiment") or "gtsweep"
-        try:
-            experiment = self.client.get_experiment_by_name(name)
-            self.experiment_id = experiment.experiment_id if experiment else self.client.create_experiment(name)
-        except Exception as e:  # unreachable server, bad URI: one line
-            raise BadInput(f"cannot use the MLflow store '{self.uri}': {str(e).strip().splitlines()[0]}") from None
+        self.experiment_id = experiment_id(self.client, (mlflow_cfg or {}).get("experiment") or "gtsweep")
         storage = safe_storage(settings["storage"])
         query = (f"tags.`{STUDY_TAG}` = '{study.study_name}' and tags.`{STORAGE_TAG}` = '{storage}' "
                  f"and tags.`{ROLE_TAG}` = 'study'")

@@ -10,48 +10,22 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Mapping
 
 from gtsweep.core.errors import BadInput
+from gtsweep.tracking.store import experiment_id, flatten, git_commit, tracking_uri
 
 PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
 
 
-def tracking_uri(cfg: Mapping | None) -> str:
-    """The configured store: ``mlflow.tracking_uri``, else ``$MLFLOW_TRACKING_URI``, else ./mlflow.db (absolute)."""
-    uri = (cfg or {}).get("tracking_uri") or os.environ.get("MLFLOW_TRACKING_URI")
-    return uri or f"sqlite:///{Path.cwd().resolve() / 'mlflow.db'}"
-
-
-def flatten(value, prefix: str = "") -> dict[str, str]:
-    """A nested config as MLflow params: ``{"detector.params.nfeatures": "0", ...}``."""
-    if isinstance(value, Mapping):
-        out = {}
-        for key, inner in value.items():
-            out.update(flatten(inner, f"{prefix}.{key}" if prefix else str(key)))
-        return out
-    return {prefix: json.dumps(value) if isinstance(value, (list, tuple)) else str(value)}
-
-
 def step_scale(values) -> int:
     """Metric steps must be integers: strengths are used as they are when integral, else times 100."""
     return 1 if all(float(v).is_integer() for v in values) else 100
-
-
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent)
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 class SweepTracker:
@@ -75,28 +49,22 @@ class SweepTracker:
 
     def start(self, grid, dataset_fingerprint: str, versions: Mapping) -> None:
         """Create (or, on resume, reopen) the parent run."""
-        try:
-            experiment = self.client.get_experiment_by_name(self.experiment_name)
-            experiment_id = experiment.experiment_id if experiment else \
-                self.client.create_experiment(self.experiment_name)
-        except Exception as e:  # unreachable server, bad URI: one line, before any work
-            raise BadInput(f"cannot use the MLflow store '{self.uri}': {str(e).splitlines()[0]}") from None
+        self.experiment_id = experiment_id(self.client, self.experiment_name)
         self.output_dir.mkdir(parents=True, exist_ok=True)
         record = self.output_dir / PARENT_RECORD
         if record.exists():
             self.parent_id = json.loads(record.read_text())["parent_run_id"]
             self.client.update_run(self.parent_id, status="RUNNING")
-            self.logged = self._logged_children(experiment_id)
+            self.logged = self._logged_children(self.experiment_id)
         else:
             tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.git_commit": git_commit(),
                     "gtsweep.dataset_fingerprint": dataset_fingerprint, "gtsweep.output_dir": str(self.output_dir),
                     "gtsweep.experiment": grid.experiment["name"],
                     **{f"gtsweep.version.{k}": str(v) for k, v in versions.items()}}
-            run = self.client.create_run(experiment_id, run_name=self.run_name, tags=tags)
+            run = self.client.create_run(self.experiment_id, run_name=self.run_name, tags=tags)
             self.parent_id = run.info.run_id
             self.client.log_text(self.parent_id, self.config_yaml, "config.yaml")
             record.write_text(json.dumps({"parent_run_id": self.parent_id, "tracking_uri": self.uri}))
-        self.experiment_id = experiment_id
         self.grid = grid
 
     def _logged_children(self, experiment_id: str) -> set[tuple[str, str]]:

@@ -1,0 +1,96 @@
+"""One Optuna study: open (or continue) it, then ask, evaluate on the executor, tell, until ``n_trials`` are
+complete.
+
+The driver asks ``parallel_trials`` trials at a time, submits them to the executor, tells each result as it
+arrives, and asks the next batch when the batch is done. Before each batch the TPE sampler is re-seeded from
+``sampler_seed`` and the number of complete trials, so the same config and seed give the same trials and numbers,
+on Ray or in-process alike. Trials left RUNNING by a kill are marked FAIL and their parameters asked again.
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Mapping
+
+from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.seeds import stable_seed
+from gtsweep.optimize.objective import evaluate
+from gtsweep.optimize.search_space import defaults_in_space
+from gtsweep.optimize.settings import job_transforms
+from gtsweep.optimize.targets import Target
+
+
+def open_study(storage: str, name: str):
+    """Create or load the study; trials left RUNNING by a kill become FAIL and their parameters are asked again."""
+    import optuna
+    from optuna.trial import TrialState
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    if storage.startswith("sqlite:///"):
+        Path(storage[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        rdb = optuna.storages.RDBStorage(storage, engine_kwargs={"connect_args": {"timeout": 60}}
+                                         if storage.startswith("sqlite") else None)
+        study = optuna.create_study(study_name=name, storage=rdb, direction="maximize", load_if_exists=True)
+    except Exception as e:  # bad URL, unreachable database
+        raise BadInput(f"cannot open the Optuna storage '{storage}': {str(e).strip().splitlines()[0]}") from None
+    for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+        study.tell(trial.number, state=TrialState.FAIL)
+        if "retry_of" not in trial.user_attrs:  # a trial that was itself retried may have crashed the process
+            study.enqueue_trial(trial.params, user_attrs={"retry_of": trial.number})
+    return study
+
+
+def complete_trials(study) -> list:
+    from optuna.trial import TrialState
+
+    return study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+
+
+def trial_job(target: Target, settings: Mapping, values: Mapping, seed: int, cache_dir: str | None) -> dict:
+    """The work of one trial for :func:`gtsweep.optimize.objective.evaluate`."""
+    tuned = {**target.defaults, **values}
+    detector_params = tuned if target.group == "detector" else target.detector_params
+    return {"objective": settings["objective"], "detector": target.detector, "detector_params": detector_params,
+            "descriptor": target.descriptor, "descriptor_params": tuned if target.group == "descriptor" else {},
+            "selector": settings["selector"]["name"], "selector_params": dict(settings["selector"].get("params") or {}),
+            "transforms": job_transforms(settings), "seed": seed, "cache_dir": cache_dir,
+            "settings": {k: settings.get(k) for k in ("min_keypoints", "iou_threshold", "ratio", "mutual", "pose")}}
+
+
+def optimise(study, target: Target, settings: Mapping, shards, executor, seed: int, cache_dir: str | None,
+             on_trial=None) -> dict:
+    """Run trials on ``executor`` until ``n_trials`` are complete; returns counts for the summary.
+
+    ``shards``: the executor's handle of the optimisation shards (:func:`gtsweep.orchestration.shards.load_shards`).
+    """
+    import optuna
+
+    n_trials, parallel = settings["n_trials"], settings["parallel_trials"]
+    if settings.get("enqueue_defaults", True) and not study.trials:
+        start = defaults_in_space(target.distributions, target.defaults)
+        if start is not None:  # the defaults are trial 0: the tuned result is never worse on these images
+            study.enqueue_trial(start, user_attrs={"defaults": True})
+    new = failed = 0
+    last_error = ""
+    while (done := len(complete_trials(study))) < n_trials:
+        study.sampler = optuna.samplers.TPESampler(seed=stable_seed(settings["sampler_seed"], done),
+                                                   n_startup_trials=settings["n_startup_trials"])
+        for _ in range(min(parallel, n_trials - done)):
+            trial = study.ask(target.distributions)
+            executor.submit(evaluate, shards, trial_job(target, settings, trial.params, seed, cache_dir), tag=trial)
+        for trial, result in executor.results():
+            if "metrics" in result:
+                trial.set_user_attr("metrics", result["metrics"])
+                frozen = study.tell(trial, result["metrics"]["score"])
+                new += 1
+            else:
+                trial.set_user_attr("error", result["error"])
+                frozen = study.tell(trial, state=optuna.trial.TrialState.FAIL)
+                failed, last_error = failed + 1, result["error"]
+            if on_trial is not None:
+                on_trial(frozen)
+        if failed > max(n_trials, parallel):
+            raise GtsweepError(f"{target.label}: {failed} trials failed; the last: {last_error}")
+    return {"new": new, "failed": failed}

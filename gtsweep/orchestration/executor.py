@@ -1,0 +1,205 @@
+"""Where tasks run: one interface for the sweep and the optimiser, in one process (``serial``) or on Ray.
+
+A driver :meth:`~SerialExecutor.put`\\ s large inputs once, :meth:`~SerialExecutor.submit`\\ s plain functions
+(the handles a submit returns can be passed, as top-level arguments, to later submits), and reads
+``(tag, result)`` from :meth:`~SerialExecutor.results` as the tagged tasks finish. A task that crashes gives
+``{"error": reason}``, never an exception in the driver. Tasks are pure functions of their arguments, so the same
+inputs give bit-identical results on either backend.
+"""
+from __future__ import annotations
+
+import functools
+import logging
+import traceback
+from collections import deque
+from typing import Any, Callable, Iterator, Mapping
+
+from gtsweep.core.errors import BadInput, GtsweepError
+
+BACKENDS = ("ray", "serial")
+
+
+def backend(runner_cfg: Mapping) -> str:
+    """``runner.backend``, checked: ``ray`` or ``serial``."""
+    name = runner_cfg.get("backend", "ray")
+    if name not in BACKENDS:
+        raise BadInput(f"runner.backend must be one of {', '.join(BACKENDS)}, got {name!r}")
+    return name
+
+
+def make_executor(runner_cfg: Mapping, retries: int = 3):
+    """The executor ``runner`` asks for; Ray is started or joined here. ``retries``: Ray's re-runs of a task
+    whose worker died (0 for work that may itself kill the worker, e.g. an optimiser trial)."""
+    if backend(runner_cfg) == "serial":
+        return SerialExecutor()
+    return RayExecutor(runner_cfg, retries)
+
+
+def describe_error(error: BaseException) -> str:
+    """A failure in one line: a :class:`GtsweepError`'s message as it is; anything else with its type and the
+    line that raised it."""
+    message = " ".join(str(error).split())  # OpenCV's messages span lines
+    if isinstance(error, GtsweepError):
+        return message
+    frames = traceback.extract_tb(error.__traceback__)
+    where = f" (at {frames[-1].filename}:{frames[-1].lineno})" if frames else ""
+    return f"{type(error).__name__}: {message}{where}"
+
+
+# ---------------------------------------------------------------------------------------------------- serial
+class _Task:
+    __slots__ = ("function", "args", "num_returns", "tag", "value", "error")
+
+    def __init__(self, function, args, num_returns, tag):
+        self.function, self.args, self.num_returns, self.tag = function, args, num_returns, tag
+        self.value: Any = None
+        self.error: str | None = None
+
+
+class Handle:
+    """A serial task's future result (return ``index`` of it when it has several)."""
+
+    __slots__ = ("task", "index")
+
+    def __init__(self, task: _Task, index: int | None):
+        self.task, self.index = task, index
+
+
+class SerialExecutor:
+    """Runs tasks in this process, one at a time, in submission order, as the driver reads :meth:`results`.
+
+    Nothing runs at submit; a result is kept only while the driver or a later task still holds its handle, so a
+    large sweep never has all its results in memory at once.
+    """
+
+    def __init__(self):
+        self.queue: deque[_Task] = deque()
+
+    def put(self, value):
+        return value
+
+    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1):
+        """Queue ``function(*args)``; its handle, or a tuple of ``num_returns`` handles. With a ``tag``, the
+        result (the last return value when there are several) comes out of :meth:`results` as ``(tag, result)``."""
+        task = _Task(function, args, num_returns, tag)
+        self.queue.append(task)
+        return Handle(task, None) if num_returns == 1 else tuple(Handle(task, i) for i in range(num_returns))
+
+    def results(self) -> Iterator[tuple[Any, Any]]:
+        """Run the queued tasks in order; ``(tag, result)`` for each tagged one."""
+        while self.queue:
+            task = self.queue.popleft()
+            self._run(task)
+            if task.tag is not None:
+                yield task.tag, {"error": task.error} if task.error is not None else \
+                    (task.value if task.num_returns == 1 else task.value[-1])
+
+    @staticmethod
+    def _run(task: _Task) -> None:
+        args = []
+        for arg in task.args:
+            if isinstance(arg, Handle):
+                if arg.task.error is not None:  # as on Ray: a task fed by a failed one fails with the same reason
+                    task.error = arg.task.error
+                    break
+                arg = arg.task.value if arg.index is None else arg.task.value[arg.index]
+            args.append(arg)
+        else:
+            try:
+                task.value = task.function(*args)
+            except Exception as e:  # a crashed task: its result says why, the run goes on
+                task.error = describe_error(e)
+        task.function = task.args = None  # the inputs are no longer needed
+
+
+# ------------------------------------------------------------------------------------------------------- ray
+class RayExecutor:
+    """Runs tasks as Ray tasks (one CPU each, OpenCV limited to ``runner.opencv_threads`` threads in them)."""
+
+    def __init__(self, runner_cfg: Mapping, retries: int = 3):
+        connect(runner_cfg)
+        self.threads = runner_cfg.get("opencv_threads", 1)
+        self.retries = retries
+        self.remotes: dict[tuple, Any] = {}
+        self.pending: dict[Any, Any] = {}  # ObjectRef of a tagged task -> tag
+
+    def put(self, value):
+        import ray
+
+        return ray.put(value)
+
+    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1):
+        """As :meth:`SerialExecutor.submit`; returns ObjectRefs (Ray resolves them when passed as arguments)."""
+        import ray
+
+        key = (function, num_returns)
+        if key not in self.remotes:
+            self.remotes[key] = ray.remote(num_cpus=1, num_returns=num_returns, max_retries=self.retries)(
+                with_opencv_threads(function, self.threads))
+        refs = self.remotes[key].remote(*args)
+        if tag is not None:
+            self.pending[refs[-1] if num_returns > 1 else refs] = tag
+        return refs
+
+    def results(self, batch: int = 64) -> Iterator[tuple[Any, Any]]:
+        """``(tag, result)`` as tagged tasks finish, collected ``batch`` at a time (one ``ray.wait`` per result
+        would be quadratic in the number of tasks)."""
+        import ray
+
+        while self.pending:
+            done, _ = ray.wait(list(self.pending), num_returns=min(batch, len(self.pending)), timeout=0.2)
+            for ref in done:
+                tag = self.pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayError as e:  # the task raised, or its worker died
+                    cause = getattr(e, "cause", None)
+                    result = {"error": describe_error(cause) if isinstance(cause, Exception)
+                              else f"Ray task failed: {(str(e).strip().splitlines() or [type(e).__name__])[0]}"}
+                yield tag, result
+
+
+def with_opencv_threads(function: Callable, threads: int | None) -> Callable:
+    """``function`` run with OpenCV limited to ``threads`` threads: Ray runs one task per CPU, so OpenCV's own
+    thread pool in every worker would only make the workers compete for the same cores."""
+
+    @functools.wraps(function)
+    def run(*args):
+        if threads:
+            import cv2
+
+            cv2.setNumThreads(int(threads))
+        return function(*args)
+
+    return run
+
+
+def connect(runner_cfg: Mapping) -> None:
+    """Start or join Ray once per process.
+
+    ``address: local`` starts an embedded Ray (plain ``ray.init()`` would silently attach to a stale cluster
+    recorded in /tmp/ray). ``auto`` joins the cluster this machine belongs to; ``host:port`` a remote head, which
+    since Ray 2.59 needs its token: export ``RAY_AUTH_MODE=token`` and ``RAY_AUTH_TOKEN`` (see README).
+    """
+    import ray
+
+    address = runner_cfg.get("address") or "local"
+    if ray.is_initialized():
+        current = ray.get_runtime_context().gcs_address
+        if address in ("local", "auto") or address.split("://")[-1] == current:
+            return
+        ray.shutdown()  # connected elsewhere: the requested cluster wins
+    options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
+    if runner_cfg.get("runtime_env"):
+        options["runtime_env"] = dict(runner_cfg["runtime_env"])
+    if address == "local":
+        num_cpus = runner_cfg.get("num_cpus")
+        if num_cpus is not None and (not isinstance(num_cpus, int) or num_cpus < 1):
+            raise BadInput(f"runner.num_cpus must be a positive integer or null, got {num_cpus!r}")
+        ray.init(address="local", num_cpus=num_cpus, **options)
+        return
+    try:
+        ray.init(address=address, **options)
+    except (ConnectionError, RuntimeError, ValueError) as e:
+        hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
+        raise BadInput(f"cannot join the Ray cluster at '{address}': {str(e).splitlines()[0]}{hint}") from None
