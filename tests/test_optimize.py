@@ -107,6 +107,7 @@ def test_resume_continues_the_study_without_duplicate_runs(first):
     assert failed["status"] == "FAILED" and failed["tags.gtsweep.reason"].startswith("interrupted")
 
 
+@pytest.mark.slow
 def test_same_seed_same_trials_on_ray_and_in_process(first, tmp_path):
     first_path, summary = first
     ray_run = optimise(tmp_path, "experiment.n_trials=3", "runner.backend=ray", "runner.num_cpus=2",
@@ -117,6 +118,7 @@ def test_same_seed_same_trials_on_ray_and_in_process(first, tmp_path):
     assert ours == theirs
 
 
+@pytest.mark.slow
 def test_pose_success_tunes_descriptor_params(tmp_path):
     summary = optimise(tmp_path, "experiment.objective=pose_success", "detector=[orb]", "descriptor=[brief]",
                        "experiment.n_trials=2", "experiment.transforms={rotation:{strengths:[30]}}")
@@ -127,6 +129,7 @@ def test_pose_success_tunes_descriptor_params(tmp_path):
     assert written["brief"]["params"]["use_orientation"] is True
 
 
+@pytest.mark.slow
 def test_cli_runs_a_study_and_reports_bad_spaces_in_one_line(tmp_path):
     done = run_cli(overrides(tmp_path, "experiment.n_trials=2", "mlflow.enabled=false"), cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -36,6 +36,7 @@ def _count_detections(monkeypatch) -> list:
     return calls
 
 
+@pytest.mark.slow
 def test_detection_is_computed_once_and_cached(tmp_path, monkeypatch):
     calls = _count_detections(monkeypatch)
     grid = ["detector=[akaze,censure]", "descriptor=[brief,latch,orb,sift]", "selector=[nms]",
@@ -52,30 +53,59 @@ def test_detection_is_computed_once_and_cached(tmp_path, monkeypatch):
     assert_same_cells(tmp_path / "run1", tmp_path / "run2")
 
 
-def test_na_cells_and_unavailable_methods_do_not_stop_the_sweep(tmp_path, monkeypatch):
-    from gtsweep.stages import describe
+def test_na_is_only_the_pairing_rule_and_run_time_failures_are_errors(tmp_path, monkeypatch):
+    import cv2
 
-    def not_installed(**params):
-        raise ImportError("No module named 'nonfree_sift'")
+    from gtsweep.stages.describe import DESCRIPTORS
 
-    original = describe.get_descriptor
-    monkeypatch.setattr(describe, "get_descriptor", lambda name: dataclasses.replace(
-        original(name), create=not_installed) if name == "sift" else original(name))
-    grid = ["detector=[censure]", "descriptor=[akaze,daisy,brief,latch,sift]", "selector=[nms]",
-            "transform=[incremental]", "descriptor.latch.params.bytes=3", "mlflow.enabled=false"]
+    class Rejecting:  # an extractor that OpenCV builds but that fails when it runs, as some parameters do
+        def descriptorSize(self):
+            return 32
+
+        def compute(self, image, keypoints):
+            raise cv2.error("OpenCV(5.0.0) latch.cpp:1: error: (-215:Assertion failed) half_ssd_size in 'compute'")
+
+    latch = DESCRIPTORS.get("latch")
+    monkeypatch.setitem(DESCRIPTORS._methods, "latch", dataclasses.replace(latch, create=lambda **p: Rejecting()))
+    grid = ["detector=[censure]", "descriptor=[akaze,daisy,brief,latch]", "selector=[nms]",
+            "transform=[incremental]", "mlflow.enabled=false"]
     outcome = run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "run")
     status = {s["methods"]["descriptor"]: (s["status"], s.get("reason") or "") for s in outcome.summaries}
-    # NA: the survey's pairing rules; error: a method that cannot run here, a parameter OpenCV rejects
+    # NA: the survey's pairing rules; error: OpenCV rejects the method when it runs, with OpenCV's reason
     assert status["akaze"][0] == status["daisy"][0] == "na" and "orientation" in status["daisy"][1]
     assert status["brief"][0] == "ok"
-    assert status["sift"] == ("error", "descriptor 'sift' is not available: No module named 'nonfree_sift'")
-    assert status["latch"][0] == "error" and "descriptorSize must be" in status["latch"][1]
-    assert "\n" not in status["latch"][1] and sorted(outcome.failed) == sorted(
-        s["key"] for s in outcome.summaries if s["methods"]["descriptor"] in ("latch", "sift"))
+    assert status["latch"][0] == "error" and "(-215:Assertion failed) half_ssd_size" in status["latch"][1]
+    assert "\n" not in status["latch"][1]
+    assert outcome.failed == [s["key"] for s in outcome.summaries if s["methods"]["descriptor"] == "latch"]
     results = (tmp_path / "run" / "results.csv").read_text()
     assert "only describes AKAZE keypoints" in results
 
 
+def test_rejected_parameter_stops_before_any_result_file(tmp_path):
+    from gtsweep.core.errors import BadInput
+
+    grid = ["detector=[censure]", "descriptor=[latch]", "transform=[incremental]", "mlflow.enabled=false",
+            "descriptor.latch.params.bytes=3"]
+    with pytest.raises(BadInput, match=r"descriptor 'latch' rejects bytes=3: \(-5:Bad argument\) descriptorSize"):
+        run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+def test_unavailable_method_stops_before_any_result_file(tmp_path, monkeypatch):
+    from gtsweep.core.errors import GtsweepError
+    from gtsweep.stages.describe import DESCRIPTORS
+
+    def not_installed(**params):
+        raise ImportError("No module named 'nonfree_sift'")
+
+    monkeypatch.setitem(DESCRIPTORS._methods, "sift", dataclasses.replace(DESCRIPTORS.get("sift"), create=not_installed))
+    grid = ["detector=[censure]", "descriptor=[brief,sift]", "transform=[incremental]", "mlflow.enabled=false"]
+    with pytest.raises(GtsweepError, match="descriptor 'sift' is not available: No module named 'nonfree_sift'"):
+        run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
 def test_ray_two_node_cluster_gives_the_same_numbers_as_serial(tmp_path):
     ray = pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
@@ -97,6 +127,7 @@ def test_ray_two_node_cluster_gives_the_same_numbers_as_serial(tmp_path):
     assert_same_cells(tmp_path / "serial", tmp_path / "cluster")
 
 
+@pytest.mark.slow
 def test_killed_sweep_resumes_to_the_same_numbers(tmp_path):
     grid = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,sift]", "selector=[nms]",
             "transform=[incremental,absolute]", "mlflow.enabled=false", "runner.num_cpus=1"]
@@ -134,6 +165,7 @@ def test_cli_bad_input_is_one_line(tmp_path):
     assert not (tmp_path / "outputs").exists()
 
 
+@pytest.mark.slow
 def test_glob_splits_jobs_and_outer_sweeps_work(tmp_path):
     grid = ["descriptor=[brief]", "selector=[nms]", "transform=[incremental]", "mlflow.enabled=false",
             "runner.backend=serial", "report.plots=false"]
@@ -146,6 +178,7 @@ def test_glob_splits_jobs_and_outer_sweeps_work(tmp_path):
     assert detectors == {"agast", "akaze"}
 
 
+@pytest.mark.slow
 def test_corrupt_image_stops_before_any_result_file(tmp_path):
     import dataset_fixtures as fx
 

@@ -92,6 +92,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_mlflow_server_serves_the_sweep(sweep_store, tmp_path):
     _, uri, outcome, tracker = sweep_store
     port = _free_port()

@@ -13,7 +13,7 @@ import time
 
 from gtsweep.evaluation import metrics
 from gtsweep.evaluation.transforms import ViewPair
-from gtsweep.stages.describe import get_descriptor
+from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.match import match_descriptors
 from gtsweep.stages.pairing import describe_timed
@@ -58,7 +58,7 @@ def pairing_metrics(view: ViewPair, ref_kps, test_kps, descriptor: str, descript
     ref_kept, ref_desc, t_ref = describe_timed(view.reference, ref_kps, descriptor, detector, **descriptor_params)
     test_kept, test_desc, t_test = describe_timed(view.test, test_kps, descriptor, detector, **descriptor_params)
     start = time.perf_counter()
-    matches = match_descriptors(test_desc, ref_desc, get_descriptor(descriptor).norm, experiment.get("ratio", 0.7),
+    matches = match_descriptors(test_desc, ref_desc, DESCRIPTORS.get(descriptor).norm, experiment.get("ratio", 0.7),
                                 mutual=experiment.get("mutual", False))
     t_match = time.perf_counter() - start
     iou = experiment.get("iou_threshold", 0.5)

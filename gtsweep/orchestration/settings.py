@@ -40,5 +40,6 @@ SETTINGS = {
 
 def check_settings(cfg: Mapping) -> None:
     """Raise a one-line BadInput for the first run setting of ``cfg`` outside its allowed values."""
-    values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")}
+    values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")
+              if key in cfg}
     check_all(values, SETTINGS)

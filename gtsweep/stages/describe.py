@@ -72,7 +72,6 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
 ])
 
 #: The registry's lookup under its former name (callers outside the science layers still use it).
-get_descriptor = DESCRIPTORS.get
 
 #: Detectors whose keypoints carry an ``octave`` that the same-named descriptor understands.
 _OWN_OCTAVE = {"orb", "sift", "akaze", "kaze", "brisk", "surf"}

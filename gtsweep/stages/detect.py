@@ -94,7 +94,6 @@ DETECTORS: Registry[DetectorSpec] = Registry("detector", [
 ])
 
 #: The registry's lookup under its former name (callers outside the science layers still use it).
-get_detector = DETECTORS.get
 
 
 def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> np.ndarray:
