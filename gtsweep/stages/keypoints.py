@@ -6,6 +6,7 @@ float64 array with the columns of :data:`COLUMNS`. ``angle`` is -1 where the det
 """
 from __future__ import annotations
 
+import operator
 from typing import Sequence
 
 import cv2
@@ -20,23 +21,26 @@ def empty() -> np.ndarray:
     return np.zeros((0, len(COLUMNS)), dtype=np.float64)
 
 
+_ATTRIBUTES = operator.attrgetter("size", "angle", "response", "octave", "class_id")
+
+
 def to_array(keypoints: Sequence[cv2.KeyPoint]) -> np.ndarray:
-    """Convert OpenCV keypoints to an ``(N, 7)`` array (see :data:`COLUMNS`)."""
+    """Convert OpenCV keypoints to an ``(N, 7)`` array (see :data:`COLUMNS`); positions come from OpenCV's own
+    vectorised ``KeyPoint_convert``, the other attributes through one C-level ``map``."""
     if len(keypoints) == 0:
         return empty()
-    return np.array(
-        [(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave, k.class_id) for k in keypoints],
-        dtype=np.float64,
-    )
+    positions = np.asarray(cv2.KeyPoint_convert(keypoints), dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([positions, np.array(list(map(_ATTRIBUTES, keypoints)), dtype=np.float64)])
 
 
 def to_keypoints(array: np.ndarray) -> list[cv2.KeyPoint]:
     """Convert an ``(N, 7)`` array back to OpenCV keypoints (octave and class_id rounded to int)."""
     a = np.asarray(array, dtype=np.float64).reshape(-1, len(COLUMNS))
-    return [
-        cv2.KeyPoint(float(x), float(y), float(s), float(ang), float(r), int(round(o)), int(round(c)))
-        for x, y, s, ang, r, o, c in a
-    ]
+    if len(a) == 0:
+        return []
+    floats = a[:, :OCTAVE].T.tolist()
+    ints = np.rint(a[:, OCTAVE:]).astype(np.int64).T.tolist()
+    return list(map(cv2.KeyPoint, *floats, *ints))
 
 
 def sort_by_response(array: np.ndarray) -> np.ndarray:
