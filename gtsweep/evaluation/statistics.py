@@ -1,0 +1,141 @@
+"""Uncertainty of the survey's numbers and paired tests between methods, from SciPy.
+
+Every number of a table is a mean over a few dozen views or pairs; these functions say how sure it is:
+
+- :func:`wilson_interval`: a success rate's 95 % interval (Wilson 1927), from ``scipy.stats.binomtest``;
+- :func:`bootstrap_interval`: a mean's seeded bootstrap interval (BCa) over views, ``scipy.stats.bootstrap``;
+- :func:`mcnemar_exact`: two methods' success on the SAME pairs (exact McNemar test: a binomial test on the
+  discordant pairs);
+- :func:`paired_difference`: two methods' per-view values on the same views (a paired sign-flip permutation test
+  of the mean difference, ``scipy.stats.permutation_test``, with a bootstrap interval of the difference);
+- :func:`correlation_interval`: Spearman's rho with a paired bootstrap interval;
+- :func:`verdict`: *holds*, *fails* or *inconclusive* for a directional claim at significance level ``alpha``.
+
+Seeds make every interval bit-identical from run to run, on any backend (they run in the driver).
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+CONFIDENCE = 0.95
+RESAMPLES = 2000
+
+
+def _finite(values) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64).ravel()
+    return array[np.isfinite(array)]
+
+
+def wilson_interval(successes: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Wilson score interval of a success rate ``successes / n``; (nan, nan) for n = 0."""
+    if n == 0:
+        return math.nan, math.nan
+    interval = stats.binomtest(int(successes), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(interval.low), float(interval.high)
+
+
+def bootstrap_interval(values, confidence: float = CONFIDENCE, seed: int = 0,
+                       resamples: int = RESAMPLES) -> tuple[float, float]:
+    """Seeded BCa bootstrap interval of the mean of the finite ``values``.
+
+    One value, or values that are all equal, have no spread to resample: the interval is that value. None at all:
+    (nan, nan).
+    """
+    data = _finite(values)
+    if len(data) == 0:
+        return math.nan, math.nan
+    if np.all(data == data[0]):
+        return float(data[0]), float(data[0])
+    with warnings.catch_warnings():  # BCa warns (and gives NaN) on degenerate resamples: percentile then
+        warnings.simplefilter("ignore")
+        result = stats.bootstrap((data,), np.mean, confidence_level=confidence, n_resamples=resamples,
+                                 method="BCa", rng=np.random.default_rng(seed))
+        low, high = result.confidence_interval
+        if not (math.isfinite(low) and math.isfinite(high)):
+            result = stats.bootstrap((data,), np.mean, confidence_level=confidence, n_resamples=resamples,
+                                     method="percentile", rng=np.random.default_rng(seed))
+            low, high = result.confidence_interval
+    return float(low), float(high)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A paired comparison of method A with method B on the same items."""
+
+    test: str  # which test
+    difference: float  # A - B (rate or mean difference)
+    p_value: float  # two-sided
+    low: float = math.nan  # interval of the difference, where the test gives one
+    high: float = math.nan
+    n: int = 0  # items compared
+
+    def describe(self) -> str:
+        interval = f", 95 % CI [{self.low:+.3f}, {self.high:+.3f}]" if math.isfinite(self.low) else ""
+        return f"{self.test}: A - B = {self.difference:+.3f}{interval}, p = {self.p_value:.3g}, n = {self.n}"
+
+
+def mcnemar_exact(a_success, b_success) -> Comparison:
+    """Exact McNemar test of two methods' 0/1 outcomes on the same pairs (NaN pairs left out).
+
+    Only the discordant pairs tell the methods apart: with ``b`` pairs won by A alone and ``c`` by B alone, the
+    two-sided p-value is that of ``b`` successes in ``b + c`` fair coin tosses (1 when there is none).
+    """
+    a, b_ = np.asarray(a_success, dtype=np.float64), np.asarray(b_success, dtype=np.float64)
+    keep = np.isfinite(a) & np.isfinite(b_)
+    a, b_ = a[keep] > 0.5, b_[keep] > 0.5
+    only_a, only_b = int(np.sum(a & ~b_)), int(np.sum(~a & b_))
+    p = 1.0 if only_a + only_b == 0 else float(stats.binomtest(only_a, only_a + only_b, 0.5).pvalue)
+    n = int(len(a))
+    return Comparison("exact McNemar", (only_a - only_b) / n if n else math.nan, p, n=n)
+
+
+def paired_difference(a_values, b_values, confidence: float = CONFIDENCE, seed: int = 0,
+                      resamples: int = RESAMPLES) -> Comparison:
+    """Paired comparison of two methods' per-view values (views where either is NaN left out): a sign-flip
+    permutation test of the mean difference and a bootstrap interval of it."""
+    a, b = np.asarray(a_values, dtype=np.float64), np.asarray(b_values, dtype=np.float64)
+    keep = np.isfinite(a) & np.isfinite(b)
+    diff = a[keep] - b[keep]
+    if len(diff) == 0:
+        return Comparison("paired permutation", math.nan, math.nan)
+    if np.all(diff == 0):
+        return Comparison("paired permutation", 0.0, 1.0, 0.0, 0.0, n=len(diff))
+    test = stats.permutation_test((a[keep], b[keep]), lambda x, y: np.mean(x - y), permutation_type="samples",
+                                  n_resamples=resamples, rng=np.random.default_rng(seed))
+    low, high = bootstrap_interval(diff, confidence, seed, resamples)
+    return Comparison("paired permutation", float(diff.mean()), float(test.pvalue), low, high, n=len(diff))
+
+
+def correlation_interval(x, y, confidence: float = CONFIDENCE, seed: int = 0,
+                         resamples: int = RESAMPLES) -> tuple[float, float, float]:
+    """Spearman's rho of paired ``x``, ``y`` with a seeded paired percentile bootstrap interval."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    keep = np.isfinite(x) & np.isfinite(y)
+    x, y = x[keep], y[keep]
+    if len(x) < 3 or np.all(x == x[0]) or np.all(y == y[0]):
+        return math.nan, math.nan, math.nan
+    rho = float(stats.spearmanr(x, y).statistic)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # resamples where one side is constant have no rho
+        result = stats.bootstrap((x, y), lambda u, v: stats.spearmanr(u, v).statistic, paired=True,
+                                 vectorized=False, confidence_level=confidence, n_resamples=resamples,
+                                 method="percentile", rng=np.random.default_rng(seed))
+    low, high = result.confidence_interval
+    return rho, float(low), float(high)
+
+
+HOLDS, FAILS, INCONCLUSIVE = "holds", "fails", "inconclusive"
+
+
+def verdict(comparison: Comparison, alpha: float = 0.05, claim: str = "greater") -> str:
+    """The verdict on the claim "A is ``greater`` (or ``less``) than B": *holds* when the difference is significant
+    at ``alpha`` in the claimed direction, *fails* when it is significant the other way, else *inconclusive*."""
+    if not math.isfinite(comparison.p_value) or comparison.p_value >= alpha or comparison.difference == 0:
+        return INCONCLUSIVE
+    agrees = comparison.difference > 0 if claim == "greater" else comparison.difference < 0
+    return HOLDS if agrees else FAILS

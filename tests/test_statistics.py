@@ -1,0 +1,68 @@
+"""Intervals and paired tests (gtsweep.evaluation.statistics), each against an answer worked out by hand."""
+import math
+
+import numpy as np
+import pytest
+
+from gtsweep.evaluation.statistics import (
+    FAILS,
+    HOLDS,
+    INCONCLUSIVE,
+    bootstrap_interval,
+    correlation_interval,
+    mcnemar_exact,
+    paired_difference,
+    verdict,
+    wilson_interval,
+)
+
+
+def test_wilson_interval_by_hand():
+    # 8 of 10, z = 1.959964: centre (0.8 + z^2/20) / (1 + z^2/10) = 0.716738,
+    # half width z * sqrt(0.8 * 0.2 / 10 + z^2 / 400) / (1 + z^2/10) = 0.226576
+    low, high = wilson_interval(8, 10)
+    assert low == pytest.approx(0.716738 - 0.226576, abs=1e-5) and high == pytest.approx(0.716738 + 0.226576, abs=1e-5)
+    assert wilson_interval(0, 5)[0] == 0.0 and wilson_interval(5, 5)[1] == pytest.approx(1.0)
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
+
+
+def test_exact_mcnemar_by_hand():
+    # A alone succeeds on 6 pairs, B alone on 1, both on 3: p = 2 * P(X <= 1 | n = 7, 1/2) = 2 * 8 / 128 = 0.125
+    a = [1] * 6 + [0] + [1] * 3
+    b = [0] * 6 + [1] + [1] * 3
+    result = mcnemar_exact(a, b)
+    assert result.p_value == pytest.approx(0.125) and result.difference == pytest.approx(0.5) and result.n == 10
+    assert verdict(result, alpha=0.05) == INCONCLUSIVE and verdict(result, alpha=0.2) == HOLDS
+    assert verdict(result, alpha=0.2, claim="less") == FAILS
+    # NaN pairs (not evaluated) are left out
+    assert mcnemar_exact([1, np.nan, 1], [0, 1, 0]).n == 2
+
+
+def test_a_finding_on_tied_data_is_inconclusive():
+    same = [1, 0, 1, 1, 0, 1, 1, 1]
+    assert verdict(mcnemar_exact(same, same)) == INCONCLUSIVE
+    assert mcnemar_exact(same, same).p_value == 1.0
+    tied = paired_difference([0.5, 0.7, 0.9], [0.5, 0.7, 0.9])
+    assert tied.p_value == 1.0 and verdict(tied) == INCONCLUSIVE
+
+
+def test_paired_difference_is_an_exact_sign_flip_test_on_few_views():
+    # differences 0.1, 0, 0.2, 0, 0.3: of the 2^5 sign flips, those with |mean| >= 0.12 are the 8 that keep
+    # 0.1, 0.2 and 0.3 on one side (x4 for the zeros): p = 8/32 = 0.25
+    result = paired_difference([0.5, 0.7, 0.9, 0.6, 0.8], [0.4, 0.7, 0.7, 0.6, 0.5])
+    assert result.difference == pytest.approx(0.12) and result.p_value == pytest.approx(0.25) and result.n == 5
+
+
+def test_bootstrap_interval_is_seeded_and_brackets_the_mean():
+    values = np.random.default_rng(3).normal(0.7, 0.1, 40)
+    first, second = bootstrap_interval(values, seed=5), bootstrap_interval(values, seed=5)
+    assert first == second and first[0] < values.mean() < first[1]
+    assert bootstrap_interval([0.4, np.nan, 0.4]) == (0.4, 0.4)
+    assert all(math.isnan(v) for v in bootstrap_interval([np.nan]))
+
+
+def test_correlation_interval():
+    rho, low, high = correlation_interval([1, 2, 3, 4, 5, 6], [2, 1, 4, 3, 6, 5])
+    # Spearman: d = (-1, 1, -1, 1, -1, 1), 1 - 6 * 6 / (6 * 35) = 0.828571
+    assert rho == pytest.approx(0.828571, abs=1e-6) and low <= rho <= high
+    assert math.isnan(correlation_interval([1, 1, 1], [1, 2, 3])[0])
