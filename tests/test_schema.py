@@ -37,7 +37,10 @@ MATCH_SHARE = schema.Metric("match_share", "matching", "share", "matches per des
 
 def test_mean_skips_undefined_views():
     rows = pd.DataFrame({"image": ["a", "b", "c", "d"], "ambiguity": [1.0, NAN, 2.0, np.inf]})
-    assert summarize(rows, "detection")["metrics"] == {"ambiguity": 1.5}
+    metrics = summarize(rows, "detection")["metrics"]
+    assert metrics["ambiguity"] == 1.5
+    # bootstrap interval over the two finite views {1, 2}: every resample mean lies in [1, 2]
+    assert 1.0 <= metrics["ambiguity_ci_low"] <= 1.5 <= metrics["ambiguity_ci_high"] <= 2.0
     assert math.isnan(summarize(rows.iloc[[1]], "detection")["metrics"]["ambiguity"])
 
 
@@ -61,10 +64,21 @@ def test_rate_is_the_share_of_ones(toy):
         summarize(pd.DataFrame({"found": [0.5]}), "detection")
 
 
-def test_existing_metrics_keep_the_mean_of_finite_views():
-    rows = pd.DataFrame({"n_correct": [1, 9], "n_matches": [2, 10], "precision": [0.5, 0.9]})
-    assert summarize(rows, "matching")["metrics"]["precision"] == pytest.approx(0.7)  # not pooled (10/12)
-    assert {m.aggregation for m in schema.METRICS.values()} == {"mean"}
+def test_precision_is_pooled_and_the_per_view_mean_is_kept_beside_it():
+    # two views: 1 of 1 match correct (1.0) and 1 of 9 (0.111): per view (1 + 1/9) / 2 = 0.5556; pooled 2/10 = 0.2
+    rows = pd.DataFrame({"n_correct": [1, 1], "n_matches": [1, 9], "precision": [1.0, 1 / 9]})
+    metrics = summarize(rows, "matching")["metrics"]
+    assert metrics["precision"] == pytest.approx(0.2) and metrics["precision_per_view"] == pytest.approx(5 / 9)
+    # the pooled interval resamples views: {1/1, 1/9} gives 2/2, 2/18 and 2/10 -> [1/9, 1]
+    assert metrics["precision_ci_low"] == pytest.approx(1 / 9) and metrics["precision_ci_high"] == pytest.approx(1.0)
+
+
+def test_rates_get_wilson_intervals():
+    rows = pd.DataFrame({"pose_success": [1.0] * 8 + [0.0] * 2})
+    metrics = summarize(rows, "pose")["metrics"]
+    assert metrics["pose_success"] == 0.8
+    assert metrics["pose_success_ci_low"] == pytest.approx(0.490162, abs=1e-6)
+    assert metrics["pose_success_ci_high"] == pytest.approx(0.943318, abs=1e-6)
 
 
 def test_undeclared_column_is_one_clear_error():

@@ -11,6 +11,10 @@ Aggregations over a cell's views (or the views of one step):
 - ``mean``: mean of the finite per-view values (NaN, e.g. ambiguity when nothing repeats, is skipped);
 - ``ratio``: pooled over views, Σ numerator / Σ denominator of the two columns in ``of``;
 - ``rate``: share of views with outcome 1 among the views with a 0/1 outcome.
+
+Metrics with an ``interval`` also get a 95 % interval over the cell's views (``<name>_ci_low``/``_ci_high`` in the
+summary, results.csv and MLflow; :mod:`gtsweep.evaluation.statistics`): Wilson for rates, a seeded bootstrap over
+views for means and pooled ratios (resampling views, so a ratio keeps its numerator and denominator together).
 """
 from __future__ import annotations
 
@@ -51,6 +55,7 @@ class Metric:
     per_view: Callable[[pd.DataFrame], pd.Series] | None = None  # derived from other per-view columns
     of: tuple[str, str] | None = None  # (numerator, denominator) columns of a ratio
     digits: int = 2  # decimals in the report
+    interval: bool = False  # a 95 % interval over views (Wilson for a rate, bootstrap otherwise)
 
     @property
     def experiments(self) -> tuple[str, ...]:
@@ -68,9 +73,12 @@ def _declare(*metrics: Metric) -> dict[str, Metric]:
 
 _DET, _MATCH, _POSE = EXPERIMENTS
 METRICS: dict[str, Metric] = _declare(
-    Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)"),
-    Metric("ambiguity", _DET, "matches", "mean number of reference matches of a repeated test keypoint (4.1)"),
-    Metric("few_keypoints", _DET, "share", "views with fewer than N test keypoints, '< N KPs' (survey 4.1)"),
+    Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)",
+           interval=True),
+    Metric("ambiguity", _DET, "matches", "mean number of reference matches of a repeated test keypoint (4.1)",
+           interval=True),
+    Metric("few_keypoints", _DET, "share", "views with fewer than N test keypoints, '< N KPs' (survey 4.1)",
+           aggregation="rate", interval=True),
     Metric("n_detected", _DET, "keypoints", "test keypoints found by the detector before selection (survey Table 2)",
            digits=0),
     Metric("n_kp_test", _DET, "keypoints", "test keypoints after selection (survey 2.2)", digits=0),
@@ -84,11 +92,18 @@ METRICS: dict[str, Metric] = _declare(
     Metric("n_described_test", _MATCH, "keypoints", "test keypoints the descriptor kept (survey 2.3)",
            reported=False),
     Metric("n_matches", _MATCH, "matches", "matches passing the ratio test 0.7 (survey 5)", digits=1),
-    Metric("n_correct", _MATCH, "matches", "number of correct matches, IoU > 0.5 (survey 4.2)", digits=1),
-    Metric("precision", _MATCH, "share", "correct / (correct + incorrect) matches (survey 4.2)"),
-    Metric("pose_success", _POSE, "share", "success rate: position error < 30 px, orientation < 1.5 deg (4.3)"),
-    Metric("position_error", _POSE, "px", "distance of the estimated to the true position (survey 4.3)", digits=1),
-    Metric("orientation_error", _POSE, "deg", "orientation error of the estimated pose (survey 4.3)"),
+    Metric("n_correct", _MATCH, "matches", "number of correct matches, IoU > 0.5 (survey 4.2)", digits=1,
+           interval=True),
+    Metric("precision", _MATCH, "share", "correct / all matches, pooled over views: the survey's ratio (4.2)",
+           aggregation="ratio", of=("n_correct", "n_matches"), interval=True),
+    Metric("precision_per_view", _MATCH, "share", "mean of the views' correct / all matches (views with matches)",
+           per_view=lambda rows: rows["precision"], interval=True),
+    Metric("pose_success", _POSE, "share", "success rate: position error < 30 px, orientation < 1.5 deg (4.3)",
+           aggregation="rate", interval=True),
+    Metric("position_error", _POSE, "px", "distance of the estimated to the true position (survey 4.3)", digits=1,
+           interval=True),
+    Metric("orientation_error", _POSE, "deg", "orientation error of the estimated pose (survey 4.3)",
+           interval=True),
     Metric("n_inliers", _POSE, "matches", "RANSAC inliers of the estimated pose (survey 5)", digits=1),
     Metric("t_detect", _DET, "s", "detection and selection time of the test image (survey Table 3)", digits=3),
     Metric("t_describe", _MATCH, "s", "description time of reference and test image (not in the survey)", digits=3),
@@ -210,3 +225,19 @@ def aggregate(metric: Metric, rows: pd.DataFrame) -> float:
 def aggregable(metric: Metric, rows: pd.DataFrame) -> bool:
     """The columns ``metric`` aggregates are in ``rows``."""
     return all(c in rows for c in (metric.of or (metric.name,)))
+
+
+def interval(metric: Metric, rows: pd.DataFrame, seed: int = 0) -> tuple[float, float]:
+    """The metric's 95 % interval over ``rows`` (views): Wilson for a rate, a seeded bootstrap for a mean, a
+    paired bootstrap of Σ numerator / Σ denominator for a pooled ratio."""
+    from gtsweep.evaluation import statistics
+
+    if metric.aggregation == "rate":
+        values = _numbers(rows[metric.name])
+        values = values[np.isfinite(values)]
+        return statistics.wilson_interval(int(values.sum()), len(values))
+    if metric.aggregation == "ratio":
+        num, den = (_numbers(rows[c]).to_numpy() for c in metric.of)
+        keep = np.isfinite(num) & np.isfinite(den)
+        return statistics.ratio_interval(num[keep], den[keep], seed=seed)
+    return statistics.bootstrap_interval(_numbers(rows[metric.name]), seed=seed)

@@ -3,7 +3,7 @@
 Every number of a table is a mean over a few dozen views or pairs; these functions say how sure it is:
 
 - :func:`wilson_interval`: a success rate's 95 % interval (Wilson 1927), from ``scipy.stats.binomtest``;
-- :func:`bootstrap_interval`: a mean's seeded bootstrap interval (BCa) over views, ``scipy.stats.bootstrap``;
+- :func:`bootstrap_interval`: a mean's seeded percentile bootstrap interval over views, ``scipy.stats.bootstrap``;
 - :func:`mcnemar_exact`: two methods' success on the SAME pairs (exact McNemar test: a binomial test on the
   discordant pairs);
 - :func:`paired_difference`: two methods' per-view values on the same views (a paired sign-flip permutation test
@@ -41,7 +41,7 @@ def wilson_interval(successes: int, n: int, confidence: float = CONFIDENCE) -> t
 
 def bootstrap_interval(values, confidence: float = CONFIDENCE, seed: int = 0,
                        resamples: int = RESAMPLES) -> tuple[float, float]:
-    """Seeded BCa bootstrap interval of the mean of the finite ``values``.
+    """Seeded percentile bootstrap interval of the mean of the finite ``values`` (2000 resamples).
 
     One value, or values that are all equal, have no spread to resample: the interval is that value. None at all:
     (nan, nan).
@@ -51,15 +51,31 @@ def bootstrap_interval(values, confidence: float = CONFIDENCE, seed: int = 0,
         return math.nan, math.nan
     if np.all(data == data[0]):
         return float(data[0]), float(data[0])
-    with warnings.catch_warnings():  # BCa warns (and gives NaN) on degenerate resamples: percentile then
+    result = stats.bootstrap((data,), np.mean, confidence_level=confidence, n_resamples=resamples,
+                             method="percentile", rng=np.random.default_rng(seed))
+    low, high = result.confidence_interval
+    return float(low), float(high)
+
+
+def ratio_interval(numerators, denominators, confidence: float = CONFIDENCE, seed: int = 0,
+                   resamples: int = RESAMPLES) -> tuple[float, float]:
+    """Seeded percentile bootstrap interval of a pooled ratio Σ num / Σ den, resampling (num, den) pairs."""
+    num, den = np.asarray(numerators, dtype=np.float64), np.asarray(denominators, dtype=np.float64)
+    if len(num) == 0 or den.sum() == 0:
+        return math.nan, math.nan
+    if len(num) == 1 or np.all(num * den.sum() == den * num.sum()):  # every view has the pooled ratio
+        value = float(num.sum() / den.sum())
+        return value, value
+
+    def pooled(n, d, axis=-1):
+        total = d.sum(axis=axis)
+        return np.where(total > 0, n.sum(axis=axis) / np.where(total > 0, total, 1), np.nan)
+
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = stats.bootstrap((data,), np.mean, confidence_level=confidence, n_resamples=resamples,
-                                 method="BCa", rng=np.random.default_rng(seed))
-        low, high = result.confidence_interval
-        if not (math.isfinite(low) and math.isfinite(high)):
-            result = stats.bootstrap((data,), np.mean, confidence_level=confidence, n_resamples=resamples,
-                                     method="percentile", rng=np.random.default_rng(seed))
-            low, high = result.confidence_interval
+        result = stats.bootstrap((num, den), pooled, paired=True, vectorized=True, confidence_level=confidence,
+                                 n_resamples=resamples, method="percentile", rng=np.random.default_rng(seed))
+    low, high = result.confidence_interval
     return float(low), float(high)
 
 

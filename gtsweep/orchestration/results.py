@@ -35,6 +35,10 @@ def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
         return {m.name: schema.aggregate(m, part) for m in metrics}
 
     summary = {"n_rows": int(len(rows)), "metrics": aggregates(rows)}
+    for metric in metrics:
+        if metric.interval:
+            low, high = schema.interval(metric, rows)
+            summary["metrics"][f"{metric.name}_ci_low"], summary["metrics"][f"{metric.name}_ci_high"] = low, high
     summary["n_images"] = int(rows["image"].nunique()) if "image" in rows else 0
     for step in schema.STEP_KEYS:
         if step in rows and rows[step].notna().any():
