@@ -11,8 +11,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
+from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
+from gtsweep.core.configs import configs_of_sources, register_help_resolver
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summary_table
@@ -22,12 +23,15 @@ from gtsweep.report.tables import Table, write_report
 
 def hydra_main() -> None:
     """Run the Hydra application on ``sys.argv`` (already checked and expanded by :func:`gtsweep.cli.main`)."""
+    register_help_resolver()
     _app()
 
 
-@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
+@hydra.main(config_path=PRIMARY, config_name=PRIMARY_NAME, version_base=None)
 def _app(cfg: DictConfig) -> None:
-    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    hydra_cfg = HydraConfig.get()
+    keyed_methods(cfg, configs_of_sources(hydra_cfg.runtime.config_sources), hydra_cfg.overrides.task)
+    output_dir = Path(hydra_cfg.runtime.output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
     (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:]}))
     if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver

@@ -135,7 +135,7 @@ def _merge(parts: dict[int, dict]) -> dict:
 def _detection_args(grid: Grid, job: DetectionJob, seed: int, cache_dir):
     method = {"detector": job.detector, "detector_cfg": grid.detectors[job.detector],
               "selector": job.selector, "selector_cfg": grid.selectors[job.selector]}
-    return job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir
+    return job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir, grid.declared
 
 
 def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):
@@ -143,7 +143,7 @@ def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):
 
     cell = pairing.cell
     params = descriptor_params(grid.descriptors[cell.descriptor], cell.detector)
-    return cell.detector, cell.descriptor, params, grid.experiment, seed
+    return cell.detector, cell.descriptor, params, grid.experiment, seed, grid.declared
 
 
 def _progress(total: int, enabled: bool):
