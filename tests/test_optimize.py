@@ -50,7 +50,14 @@ def trial_table(storage: str, name: str):
 @pytest.fixture(scope="module")
 def first(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("optimize")
-    return tmp_path, optimise(tmp_path, "experiment.n_trials=3")  # tuned configs go to <tmp_path>/tuned
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+        return tmp_path, optimise(tmp_path, "experiment.n_trials=3")  # tuned configs go to <tmp_path>/tuned
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
 
 
 def test_trials_are_nested_mlflow_runs(first):

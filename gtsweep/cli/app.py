@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -16,9 +17,12 @@ from gtsweep.core.configs import configs_of_sources, register_help_resolver
 from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
+from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import summary_table
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
 from gtsweep.report.tables import Table, write_report
+
+log = logging.getLogger(__name__)
 
 
 def hydra_main() -> None:
@@ -33,7 +37,9 @@ def _app(cfg: DictConfig) -> None:
     keyed_methods(cfg, configs_of_sources(hydra_cfg.runtime.config_sources), hydra_cfg.overrides.task)
     output_dir = Path(hydra_cfg.runtime.output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
-    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:]}))
+    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:],
+                                                       "overrides": list(hydra_cfg.overrides.task)}))
+    log.info("gtsweep %s in %s", " ".join(sys.argv[1:]), output_dir)
     if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver
         from gtsweep.optimize.driver import main as optimize_main
 
@@ -43,30 +49,52 @@ def _app(cfg: DictConfig) -> None:
             fail(e)
         return
     tracker = None
+    progress = Progress(enabled=cfg.runner.progress)
     try:
         hooks, on_start = (), None
         if cfg.mlflow.enabled:
             from gtsweep.tracking.sweep import SweepTracker
 
-            tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True),
-                                   run_name=f"{output_dir.parent.name}/{output_dir.name}")
+            name, nest_under = parent_run(hydra_cfg, output_dir)
+            tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True), run_name=name,
+                                   nest_under=nest_under)
             hooks = (tracker.log_cell,)
             on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
-        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start)
+        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress)
+        progress.phase("report")
         tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
+        progress.close()
         if tracker is not None:
             tracker.abort(str(e))
         fail(e)
-    print(format_outcome(outcome, tables))
-    print(f"report: {len(files)} tables and plots in {output_dir / 'report'}")
+    progress.close()
+    summary = [format_outcome(outcome, tables), f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
     if tracker is not None:
-        print(f"MLflow: parent run {tracker.parent_id} in {tracker.uri} (make ui, then open http://127.0.0.1:5000)")
+        summary.append(tracker.ui_hint())
+    log.info("\n".join(summary))
+    print("\n".join(summary))
     if outcome.failed:
         print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)
         sys.exit(1)
+
+
+def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:
+    """The name of the sweep's MLflow run (its job's overrides; in a multirun, the swept ones) and the run of the
+    multirun it nests under (None for a single run)."""
+    from hydra.types import RunMode
+
+    from gtsweep.cli.multirun import multirun_record
+    from gtsweep.tracking.tags import overrides_name
+
+    overrides = list(hydra_cfg.overrides.task)
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        return overrides_name(overrides, output_dir.name), None
+    record = multirun_record(Path(hydra_cfg.sweep.dir))
+    swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record.get("swept", [])]
+    return overrides_name(swept or overrides, f"job {hydra_cfg.job.num}"), record.get("parent_run_id")
 
 
 def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:

@@ -27,6 +27,7 @@ from gtsweep.cli.search import (
 )
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.registry import compatible
+from gtsweep.orchestration.settings import SETTINGS
 
 SINGLE_GROUPS = ("dataset", "experiment", "sweeps")
 SWEEP_RECORD = "sweep.json"
@@ -207,6 +208,8 @@ def validate(args: list[str]) -> None:
                 kind = type(default).__name__
                 raise BadInput(f"override '{key}={value}': expected {'an' if kind[0] in 'aeiou' else 'a'} {kind} "
                                f"like the default {default!r}, got {type(value).__name__}")
+            if key in SETTINGS:  # its allowed values: before Hydra creates an output directory
+                SETTINGS[key].check(key, value)
 
 
 def force_add(args: list[str]) -> list[str]:
