@@ -105,6 +105,9 @@ def test_all_expands_to_every_option():
     (["detector=[sift]", "detector.orb.params.nfeatures=5"], "detector 'orb' is not selected"),
     (["descriptor.beblid.per_detector.sift.n_bitz=5"], "descriptor 'beblid' has no parameter 'n_bitz'"),
     (["detector.nope.params.x=3"], "unknown detector 'nope'"),
+    (["runner.num_cpus=two"], "runner.num_cpus must be an integer in [1, inf) or null, got 'two'"),
+    (["runner.ray_log_level=loud"], "runner.ray_log_level must be one of debug, info, warning, error"),
+    (["--cfg", "job", "runner.dashboard=maybe"], "expected a bool"),
 ])
 def test_bad_overrides_fail_in_one_line(args, message, capsys):
     with pytest.raises(SystemExit) as exit_info:

@@ -102,9 +102,9 @@ def test_terminal_summary_shows_the_schema_headline():
 
     methods = {"detector": "sift", "selector": "nms", "descriptor": None, "transform": "rotation"}
     outcome = SimpleNamespace(grid=SimpleNamespace(experiment={"name": "detection"}), summaries=[
-        {"methods": methods, "status": "ok", "metrics": {"t_detect": 0.1, "repeatability": 0.5}}])
+        {"methods": methods, "status": "ok", "n_views": 18, "metrics": {"t_detect": 0.1, "repeatability": 0.5}}])
     ((title, pivot),) = headline_tables(outcome).items()
-    assert title == "repeatability (rotation)" and pivot.loc["sift", "nms"] == "0.50"
+    assert title == "repeatability (18 views per cell; transforms: rotation)" and pivot.loc["sift", "nms"] == "0.50"
     assert schema.experiment_of({"methods": {"descriptor": "brief"}, "metrics": {"precision": 1.0}}) == "matching"
 
 

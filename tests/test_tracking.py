@@ -105,8 +105,9 @@ def test_strength_curves_are_metric_steps(sweep_store):
     assert not [c for c in incremental.index if "_vs_" in c and incremental[c] == incremental[c]]  # no series
 
 
-def test_resumed_sweep_adds_no_duplicate_runs(sweep_store):
+def test_resumed_sweep_adds_no_duplicate_runs(sweep_store, monkeypatch):
     tmp_path, uri, outcome, tracker = sweep_store
+    monkeypatch.chdir(tmp_path)
     before = len(mlflow.search_runs(experiment_names=["gtsweep"]))
     again, _ = tracked_sweep(tmp_path, uri)
     assert again.resumed == len(again.summaries)

@@ -18,9 +18,8 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
-from gtsweep.orchestration.results import summary_table
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
-from gtsweep.report.tables import Table, write_report
+from gtsweep.report.tables import Table, frame, sample_note, write_report
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +98,7 @@ def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:
 
 def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
     """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns."""
-    table = summary_table(outcome.summaries)
+    table = frame(outcome.summaries)
     metric = schema.headline(outcome.grid.experiment["name"])
     columns = "selector" if outcome.grid.experiment["name"] == "detection" else "descriptor"
     tables = {}
@@ -108,7 +107,7 @@ def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
         shown = values.map(lambda v: "NA" if pd.isna(v) else f"{v:.2f}").where(part["status"] == "ok", "NA")
         pivot = part.assign(value=shown).pivot_table(index="detector", columns=columns, values="value",
                                                      aggfunc="first", sort=False)
-        tables[f"{metric} ({transform})"] = pivot
+        tables[f"{metric} ({sample_note(part)})"] = pivot
     return tables
 
 

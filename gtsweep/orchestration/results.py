@@ -36,6 +36,7 @@ def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
 
     summary = {"n_rows": int(len(rows)), "metrics": aggregates(rows)}
     summary["n_images"] = int(rows["image"].nunique()) if "image" in rows else 0
+    summary["n_views"] = int(rows["view"].nunique()) if "view" in rows else int(len(rows))  # pairs, or views
     for step in schema.STEP_KEYS:
         if step in rows and rows[step].notna().any():
             summary[f"by_{step}"] = {repr(float(value)): aggregates(group)
