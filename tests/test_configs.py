@@ -15,7 +15,7 @@ from gtsweep.cli import overrides as cli
 from gtsweep.cli import search
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, PACKAGE_DIR, PROJECT_DIR
-from gtsweep.orchestration.grid import build_grid
+from gtsweep.orchestration.grid import REGISTRIES, build_grid
 from gtsweep.orchestration.sweep import run_sweep
 from gtsweep.stages.detect import DETECTORS
 
@@ -25,6 +25,14 @@ factory: cv2.xfeatures2d.StarDetector_create
 orientation: false
 params: {maxSize: 22}
 """
+
+
+@pytest.fixture(autouse=True)
+def _declarations_stay_in_the_test(monkeypatch):
+    """Methods declared here are registered process-wide: each test works on copies of the registries."""
+    for registry in REGISTRIES.values():
+        monkeypatch.setattr(registry, "_methods", dict(registry._methods))
+        monkeypatch.setattr(registry, "_declared", dict(registry._declared))
 
 
 @pytest.fixture
@@ -56,6 +64,10 @@ def test_user_configs_are_valid_choices(user_conf):
     args = ["--config-dir", str(user_conf), "detector=all"]
     (expanded,) = [a for a in cli.expand_all(args) if a.startswith("detector=")]
     assert "my_star" in expanded and "sift" in expanded
+    # Hydra's sweeper globs over its main directory only: gtsweep expands a glob over the search path itself
+    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[-1] == "detector=my_star"
+    with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
+        cli.expand_all(["-m", "detector=glob(zz*)"])
     with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
         cli.validate(["--config-dir", str(user_conf), "detector=[my_starr]"])
     with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):

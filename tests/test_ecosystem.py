@@ -37,7 +37,9 @@ def test_run_names_fit_the_name_column():
                                                           "orb__anms__-__rotation": "orb·anms·rot"}
     assert cell_names(cells[:1], several_selectors=True) == {"sift__nms__brief__incremental": "sift·nms·brief·inc"}
     assert overrides_name(["seed=1", "hydra.run.dir=x"], "job") == "seed=1"
-    assert overrides_name([], "job 3") == "job 3" and len(overrides_name(["a=" + "x" * 99], "")) == 60
+    assert overrides_name([], "job 3") == "job 3" and len(overrides_name(["a=" + "x" * 99], "")) == 40
+    assert overrides_name(["sweeps=smoke", "dataset.n_incremental=2", "runner.num_cpus=2"], "x") == "sweeps=smoke"
+    assert overrides_name(["runner.num_cpus=1,2"], "x") == "runner.num_cpus=1,2"  # only settings: then those
 
 
 def test_tuned_headers_name_no_path_of_this_machine(tmp_path, monkeypatch):
@@ -63,7 +65,7 @@ def test_a_multirun_combines_seeds_as_repeats(tmp_path):
         (tmp_path / str(job) / "sweep.json").write_text(json.dumps(
             {"overrides": [f"seed={seed}", "detector=[orb]", "descriptor=[orb]"]}))
     files = combine(tmp_path, plots=False)
-    rows = pd.read_csv(tmp_path / "combined" / "results.csv")
+    rows = pd.read_csv(tmp_path / "combined" / "all_results.csv")
     assert sorted(rows["seed"]) == [0, 1] and set(rows["setting"]) == {"all"}
     summary = pd.read_csv(tmp_path / "combined" / "summary.csv").iloc[0]
     assert summary["n"] == 2 and summary["pose_success_mean"] == pytest.approx(0.5)

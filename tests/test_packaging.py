@@ -67,7 +67,7 @@ def test_a_multirun_over_seeds_writes_one_combined_table(tmp_path):
     done = run_cli(["-m", "seed=0,1", "detector=[orb]", "descriptor=[orb]", "transform=[incremental]", *SMALL,
                     f"hydra.sweep.dir={tmp_path}/multi"], tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
-    rows = pd.read_csv(tmp_path / "multi" / "combined" / "results.csv")
+    rows = pd.read_csv(tmp_path / "multi" / "combined" / "all_results.csv")
     assert sorted(rows["seed"]) == [0, 1] and set(rows["detector"]) == {"orb"}
     summary = pd.read_csv(tmp_path / "multi" / "combined" / "summary.csv")
     assert list(summary["n"]) == [2] and "pose_success_std" in summary

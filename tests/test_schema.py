@@ -109,7 +109,8 @@ def test_terminal_summary_shows_the_schema_headline():
 
 
 @pytest.mark.parametrize("toy", [MATCH_SHARE], indirect=True)
-def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path):
+def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     cfg = compose_config(tiny_overrides(
         tmp_path, "experiment=matching", "detector=[censure]", "descriptor=[brief]", "selector=[nms]",

@@ -36,8 +36,9 @@ class MultirunReport(Callback):
         if config.mlflow.enabled:
             from gtsweep.tracking.sweep import open_multirun
 
-            record["parent_run_id"] = open_multirun(config.mlflow, overrides_name(overrides, "multirun"), sweep_dir,
-                                                    record.get("parent_run_id"))
+            swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record["swept"]]
+            record["parent_run_id"] = open_multirun(config.mlflow, "multirun " + overrides_name(swept, ""),
+                                                    sweep_dir, record.get("parent_run_id"))
         (sweep_dir / MULTIRUN_RECORD).write_text(json.dumps(record))
 
     def on_multirun_end(self, config, **kwargs) -> None:

@@ -50,17 +50,35 @@ def _rewrite(args: list[str], rewrite) -> list[str]:
 
 
 def expand_all(args: list[str]) -> list[str]:
-    """``detector=all`` -> ``detector=[every option]`` for the grid groups."""
+    """``detector=all`` -> ``detector=[every option]`` for the grid groups; ``group=glob(...)`` -> the options it
+    matches, ``group=a,b`` (Hydra's sweeper globs over its main directory only, not the search path)."""
 
     def expand(overrides):
         expanded = []
         for arg in overrides:
             group, _, value = arg.partition("=")
-            expanded.append(f"{group}=[{','.join(options(group, args))}]" if group in GRID_GROUPS and value == "all"
-                            else arg)
+            if group in GRID_GROUPS and value == "all":
+                arg = f"{group}=[{','.join(options(group, args))}]"
+            elif group in (*GRID_GROUPS, *SINGLE_GROUPS) and value.startswith("glob("):
+                arg = f"{group}={','.join(_glob(group, arg, args))}"
+            expanded.append(arg)
         return expanded
 
     return _rewrite(args, expand)
+
+
+def _glob(group: str, override: str, args) -> list[str]:
+    """The options of ``group`` that ``group=glob(...)`` matches; a one-line error when none does."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    try:
+        matches = OverridesParser.create().parse_override(override).value().filter(options(group, args))
+    except HydraException as e:
+        raise BadInput(f"cannot parse '{override}': {str(e).splitlines()[0]}") from None
+    if not matches:
+        raise BadInput(f"'{override}' matches no {group}; choices: {', '.join(options(group, args))}")
+    return matches
 
 
 def searchpath(args: list[str]) -> list[str]:

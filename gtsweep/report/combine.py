@@ -5,10 +5,11 @@ repeats, their spread (sample standard deviation) and the number of repeats. Job
 separate settings (named by the overrides that differ, e.g. ``selector.nms.params.n=500``), side by side.
 Written into ``<sweep dir>/combined/``::
 
-    results.csv    every cell of every job: setting, seed, job, methods, status, metrics
-    summary.csv    per setting and cell: <metric>_mean, <metric>_std, n (repeats that evaluated it)
-    summary.md     the headline metric per setting and cell as mean ± std (n)
-    report/        the survey's tables and plots of the means (report/<setting>/ when there are several)
+    all_results.csv  every cell of every job: setting, seed, job, methods, status, metrics (not results.csv:
+                     a glob of the jobs' */results.csv must not find it)
+    summary.csv      per setting and cell: <metric>_mean, <metric>_std, n (repeats that evaluated it)
+    summary.md       the headline metric per setting and cell as mean ± std (n)
+    report/          the survey's tables and plots of the means (report/<setting>/ when there are several)
 """
 from __future__ import annotations
 
@@ -85,7 +86,7 @@ def combine(sweep_dir: str | Path, plots: bool = True) -> list[Path]:
     rows = pd.concat([summary_table(by_job[job["job"]]).assign(setting=job["setting"], seed=job["seed"],
                                                                 job=job["job"]) for job in jobs], ignore_index=True)
     rows = rows[["setting", "seed", "job", *[c for c in rows.columns if c not in ("setting", "seed", "job")]]]
-    files = [_write(out / "results.csv", rows.to_csv(index=False))]
+    files = [_write(out / "all_results.csv", rows.to_csv(index=False))]
     summary = repeat_table(rows)
     files.append(_write(out / "summary.csv", summary.to_csv(index=False)))
     headlines = {schema.headline(schema.experiment_of(s)) for summaries in by_job.values() for s in summaries}

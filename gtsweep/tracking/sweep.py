@@ -173,10 +173,11 @@ class SweepTracker:
 
     def ui_hint(self) -> str:
         """How to look at the runs: the ``mlflow ui`` command for the store actually used, or its address."""
+        page = f"#/experiments/{self.experiment_id}/runs?workflowType=machine_learning"  # the training-runs view
         if self.uri.startswith(("http://", "https://")):
-            return f"MLflow: parent run {self.parent_id}, open {self.uri}"
+            return f"MLflow: parent run {self.parent_id}, open {self.uri.rstrip('/')}/{page}"
         return (f"MLflow: parent run {self.parent_id}; to browse: mlflow ui --backend-store-uri {self.uri} "
-                f"--host 127.0.0.1 --port 5000, then open http://127.0.0.1:5000")
+                f"--host 127.0.0.1 --port 5000, then open http://127.0.0.1:5000/{page}")
 
 
 def _finite(value) -> bool:

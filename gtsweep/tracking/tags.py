@@ -12,7 +12,9 @@ SOURCE_NAME = "python -m gtsweep"
 TRANSFORM_SHORT = {"incremental": "inc", "absolute": "abs", "rotation": "rot", "translation": "trans",
                    "noise": "noise", "gamma": "gamma"}
 SEPARATOR = "·"
-MAX_NAME = 60
+MAX_NAME = 40
+#: Overrides that say how a sweep ran rather than what it evaluated: left out of run names when others remain.
+PLUMBING = ("hydra.", "++hydra", "resume=", "dataset.", "runner.", "mlflow.", "cache.", "report.")
 
 
 def quiet_mlflow() -> None:
@@ -71,8 +73,11 @@ def cell_names(cells: Iterable, several_selectors: bool) -> dict[str, str]:
 
 
 def overrides_name(overrides: Iterable[str], fallback: str) -> str:
-    """A run name from a job's overrides (``seed=1 detector=[orb]``), shortened to fit the name column."""
-    name = " ".join(o for o in overrides if not o.startswith(("hydra.", "++hydra", "resume="))) or fallback
+    """A run name from a job's overrides (``sweeps=smoke``, ``seed=1 detector=[orb]``), what it evaluates first
+    (settings such as ``dataset.*`` or ``runner.*`` only when nothing else is given), shortened to fit the name
+    column; the whole command stays in the ``gtsweep.command`` tag."""
+    overrides = [o for o in overrides if not o.startswith(PLUMBING[:3])]
+    name = " ".join(o for o in overrides if not o.lstrip("+").startswith(PLUMBING)) or " ".join(overrides) or fallback
     return name if len(name) <= MAX_NAME else name[:MAX_NAME - 1] + "…"
 
 
