@@ -34,12 +34,14 @@ bench: $(STAMP)
 ui: $(STAMP)
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port 5000
 
-# Detector parameters for the table presets (conf/detector/tuned/, committed): the studies behind the committed
-# files, about 40 minutes on 2 cores (MSD alone ~17). A study already in .gtsweep_cache/optuna.db is continued.
+# Detector parameters for the table presets (conf/detector/tuned/, shipped in the package): the studies behind the
+# committed files, about 40 minutes on 2 cores (MSD alone ~17). A study already in .gtsweep_cache/optuna.db is
+# continued. Without experiment.tuned_root=conf, experiment=optimize writes to ./tuned/ (the user's own).
+TUNE := $(BIN)/python -m gtsweep experiment=optimize experiment.tuned_root=conf
 tune: $(STAMP)
-	$(BIN)/python -m gtsweep experiment=optimize 'detector=[agast,akaze,brisk,gftt,harris,kaze,msd,orb,sift,surf,xfeat]' experiment.n_trials=10
-	$(BIN)/python -m gtsweep experiment=optimize 'detector=[censure,fast,mser]' experiment.n_trials=30
-	$(BIN)/python -m gtsweep experiment=optimize 'detector=[harris_laplace]' experiment.n_trials=24
+	$(TUNE) 'detector=[agast,akaze,brisk,gftt,harris,kaze,msd,orb,sift,surf,xfeat]' experiment.n_trials=10
+	$(TUNE) 'detector=[censure,fast,mser]' experiment.n_trials=30
+	$(TUNE) 'detector=[harris_laplace]' experiment.n_trials=24
 
 # The long run: every survey table preset on the embedded data set (about an hour), docs/REPRODUCTION.md.
 reproduce: $(STAMP)

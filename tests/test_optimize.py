@@ -3,7 +3,6 @@ configs that load back through Hydra, Ray and in-process trials giving the same 
 from __future__ import annotations
 
 import math
-import shutil
 
 import mlflow
 import optuna
@@ -27,9 +26,9 @@ FAST = ["experiment=optimize", "detector=[fast]", "runner.backend=serial", "expe
         "experiment.transforms.rotation.strengths=[45]", "experiment.transforms.noise.strengths=[20]"]
 
 
-def overrides(tmp_path, *extra, store="optuna.db"):
-    return tiny_overrides(tmp_path, *FAST, f"experiment.storage=sqlite:///{tmp_path}/{store}",
-                          f"experiment.tuned_root={tmp_path}/conf",
+def overrides(tmp_path, *extra, store="optuna.db", tuned_root=True):
+    root = [f"experiment.tuned_root={tmp_path}/tuned"] if tuned_root else []  # else ./tuned, the default
+    return tiny_overrides(tmp_path, *FAST, f"experiment.storage=sqlite:///{tmp_path}/{store}", *root,
                           f"mlflow.tracking_uri=sqlite:///{tmp_path}/mlflow.db", *extra)
 
 
@@ -51,8 +50,14 @@ def trial_table(storage: str, name: str):
 @pytest.fixture(scope="module")
 def first(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("optimize")
-    shutil.copytree(CONF_DIR, tmp_path / "conf")  # tuned configs go to a copy of conf/, never the repository's
-    return tmp_path, optimise(tmp_path, "experiment.n_trials=3")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
+        return tmp_path, optimise(tmp_path, "experiment.n_trials=3")  # tuned configs go to <tmp_path>/tuned
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
 
 
 def test_trials_are_nested_mlflow_runs(first):
@@ -73,13 +78,17 @@ def test_trials_are_nested_mlflow_runs(first):
 
 def test_tuned_config_loads_back_through_hydra(first, monkeypatch):
     tmp_path, summary = first
-    path = tmp_path / "conf" / "detector" / "tuned" / "fast.yaml"
-    assert path.read_text().startswith("# @package detector\n# Tuned by gtsweep")
+    path = tmp_path / "tuned" / "detector" / "tuned" / "fast.yaml"
+    text = path.read_text()
+    assert text.startswith("# @package detector\n# Tuned by gtsweep") and str(tmp_path) not in text  # no local path
+    assert "(sqlite:///optuna.db), best of 3 complete trials" in text
     assert (tmp_path / "out" / "tuned" / "detector" / "fast.yaml").exists()
-    monkeypatch.setattr(cli, "CONF_DIR", tmp_path / "conf")  # a copy of conf/ that holds the tuned config
+    shipped = yaml.safe_load((CONF_DIR / "detector" / "tuned" / "fast.yaml").read_text())["fast"]["params"]
+    assert compose_config(["detector=[tuned/fast]"]).detector.fast.params == shipped  # elsewhere: the package's
+    monkeypatch.chdir(tmp_path)  # ./tuned is on the search path before the package's configs: ours wins
     cfg = compose_config(tiny_overrides(tmp_path, "experiment=detection", "detector=[tuned/fast,orb]"))
     assert set(cfg.detector) == {"fast", "orb"}
-    assert cfg.detector.fast.params.threshold == summary["best_params"]["threshold"]
+    assert cfg.detector.fast.params.threshold == summary["best_params"]["threshold"] != shipped["threshold"]
     assert cfg.detector.fast.params.type == 2  # untuned defaults are kept
     assert {c.detector for c in build_grid(cfg).cells} == {"fast", "orb"}
     with pytest.raises(UnknownMethod, match="tuned/fast"):  # the CLI's check lists tuned options
@@ -124,16 +133,17 @@ def test_pose_success_tunes_descriptor_params(tmp_path):
                        "experiment.n_trials=2", "experiment.transforms={rotation:{strengths:[30]}}")
     assert summary["target"] == "orb+brief" and summary["group"] == "descriptor"
     assert 0 <= summary["metrics"]["pose_success"] <= 1 and "precision" in summary["metrics"]
-    written = yaml.safe_load((tmp_path / "conf" / "descriptor" / "tuned" / "brief.yaml").read_text())
+    written = yaml.safe_load((tmp_path / "tuned" / "descriptor" / "tuned" / "brief.yaml").read_text())
     assert written["brief"]["params"]["bytes"] == summary["best_params"]["bytes"]
     assert written["brief"]["params"]["use_orientation"] is True
 
 
 @pytest.mark.slow
 def test_cli_runs_a_study_and_reports_bad_spaces_in_one_line(tmp_path):
-    done = run_cli(overrides(tmp_path, "experiment.n_trials=2", "mlflow.enabled=false"), cwd=tmp_path)
+    done = run_cli(overrides(tmp_path, "experiment.n_trials=2", "mlflow.enabled=false", tuned_root=False),
+                   cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "best: trial" in done.stdout and (tmp_path / "conf/detector/tuned/fast.yaml").exists()
+    assert "best: trial" in done.stdout and (tmp_path / "tuned/detector/tuned/fast.yaml").exists()  # ./tuned
     bad = run_cli(overrides(tmp_path, "detector.fast.search_space.threshold.low=100"), cwd=tmp_path)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0
     assert "detector.fast.search_space.threshold: low must be below high" in bad.stderr

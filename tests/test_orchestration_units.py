@@ -9,6 +9,7 @@ from omegaconf import OmegaConf
 from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
 from gtsweep.orchestration.cache import KeypointCache, detection_key
 from gtsweep.orchestration.grid import build_grid
 from gtsweep.orchestration.results import ResultStore, summarize
@@ -104,6 +105,9 @@ def test_all_expands_to_every_option():
     (["detector=[sift]", "detector.orb.params.nfeatures=5"], "detector 'orb' is not selected"),
     (["descriptor.beblid.per_detector.sift.n_bitz=5"], "descriptor 'beblid' has no parameter 'n_bitz'"),
     (["detector.nope.params.x=3"], "unknown detector 'nope'"),
+    (["runner.num_cpus=two"], "runner.num_cpus must be an integer in [1, inf) or null, got 'two'"),
+    (["runner.ray_log_level=loud"], "runner.ray_log_level must be one of debug, info, warning, error"),
+    (["--cfg", "job", "runner.dashboard=maybe"], "expected a bool"),
 ])
 def test_bad_overrides_fail_in_one_line(args, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
@@ -128,13 +132,13 @@ def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):
     assert cli.resume_args(["detector=[orb]", "resume=true"], multirun=False) == []
 
 
-@pytest.mark.parametrize("preset", sorted(p.stem for p in cli.CONF_DIR.parent.joinpath("sweeps").glob("*.yaml")))
+@pytest.mark.parametrize("preset", sorted(p.stem for p in SWEEPS_DIR.glob("*.yaml")))
 def test_every_preset_composes_into_a_grid(preset):
     """Each preset of sweeps/ composes with the committed tuned detector configs and builds a non-empty grid."""
     cfg = cli.compose_config([f"sweeps={preset}"])
     grid = build_grid(cfg)
     assert len(grid.cells) > 0
-    tuned = cli.CONF_DIR / "detector" / "tuned"
+    tuned = CONF_DIR / "detector" / "tuned"
     for name in cfg.detector:  # every preset runs the committed tuned detectors
         tuned_params = OmegaConf.load(tuned / f"{name}.yaml")[name].params
         assert cfg.detector[name].params == tuned_params, name

@@ -116,14 +116,15 @@ def test_terminal_summary_shows_the_schema_headline():
 
     methods = {"detector": "sift", "selector": "nms", "descriptor": None, "transform": "rotation"}
     outcome = SimpleNamespace(grid=SimpleNamespace(experiment={"name": "detection"}), summaries=[
-        {"methods": methods, "status": "ok", "metrics": {"t_detect": 0.1, "repeatability": 0.5}}])
+        {"methods": methods, "status": "ok", "n_views": 18, "metrics": {"t_detect": 0.1, "repeatability": 0.5}}])
     ((title, pivot),) = headline_tables(outcome).items()
-    assert title == "repeatability (rotation)" and pivot.loc["sift", "nms"] == "0.50"
+    assert title == "repeatability (18 views per cell; transforms: rotation)" and pivot.loc["sift", "nms"] == "0.50"
     assert schema.experiment_of({"methods": {"descriptor": "brief"}, "metrics": {"precision": 1.0}}) == "matching"
 
 
 @pytest.mark.parametrize("toy", [MATCH_SHARE], indirect=True)
-def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path):
+def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     cfg = compose_config(tiny_overrides(
         tmp_path, "experiment=matching", "detector=[censure]", "descriptor=[brief]", "selector=[nms]",

@@ -40,7 +40,9 @@ def tracked_sweep(tmp_path, uri):
 def sweep_store(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("tracked")
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    outcome, tracker = tracked_sweep(tmp_path, uri)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(tmp_path)  # MLflow's default artifact root is ./mlruns
+        outcome, tracker = tracked_sweep(tmp_path, uri)
     return tmp_path, uri, outcome, tracker
 
 
@@ -64,6 +66,33 @@ def test_one_parent_and_one_child_per_cell(sweep_store):
     assert ok["params.detector.params.threshold"].notna().any()  # the cell's full method configuration
 
 
+def test_runs_read_as_the_ui_expects(sweep_store):
+    """Model-development experiment, standard source tags, short child names, cell compute times, artifacts."""
+    tmp_path, uri, outcome, tracker = sweep_store
+    client = mlflow.tracking.MlflowClient(uri)
+    experiment = client.get_experiment_by_name("gtsweep")
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+    children = client.search_runs([experiment.experiment_id], f"tags.mlflow.parentRunId = '{tracker.parent_id}'")
+    names = {r.data.tags["gtsweep.cell"]: r.info.run_name for r in children}
+    assert names["akaze__nms__brief__incremental"] == "akaze·brief·inc"
+    assert names["censure__nms__akaze__rotation"] == "censure·akaze·rot"
+    summaries = {s["key"]: s for s in outcome.summaries}
+    for run in children:
+        tags = run.data.tags
+        assert tags["mlflow.source.name"] == "python -m gtsweep" and tags["mlflow.source.type"] == "LOCAL"
+        assert tags["mlflow.user"] and tags["mlflow.source.git.commit"]
+        summary = summaries[tags["gtsweep.cell"]]
+        if summary["status"] != "ok":
+            continue
+        assert run.info.start_time == round(summary["started"] * 1000)  # the cell's compute time
+        assert run.info.end_time == round(summary["ended"] * 1000) >= run.info.start_time
+        artifacts = [a.path for a in client.list_artifacts(run.info.run_id)]
+        assert artifacts == [f"{tags['gtsweep.cell']}.csv"]  # the cell's per-view rows
+    parent = client.get_run(tracker.parent_id)
+    assert parent.data.tags["mlflow.source.name"] == "python -m gtsweep"
+    assert "mlflow ui --backend-store-uri " + uri in tracker.ui_hint()
+
+
 def test_strength_curves_are_metric_steps(sweep_store):
     tmp_path, uri, outcome, tracker = sweep_store
     client = mlflow.tracking.MlflowClient(uri)
@@ -71,10 +100,14 @@ def test_strength_curves_are_metric_steps(sweep_store):
                              filter_string="tags.`gtsweep.cell` = 'akaze__nms__brief__rotation'").iloc[0]
     history = client.get_metric_history(run.run_id, "pose_success_vs_strength")
     assert sorted(m.step for m in history) == [0, 90]
+    incremental = mlflow.search_runs(experiment_names=["gtsweep"],
+                                     filter_string="tags.`gtsweep.cell` = 'akaze__nms__brief__incremental'").iloc[0]
+    assert not [c for c in incremental.index if "_vs_" in c and incremental[c] == incremental[c]]  # no series
 
 
-def test_resumed_sweep_adds_no_duplicate_runs(sweep_store):
+def test_resumed_sweep_adds_no_duplicate_runs(sweep_store, monkeypatch):
     tmp_path, uri, outcome, tracker = sweep_store
+    monkeypatch.chdir(tmp_path)
     before = len(mlflow.search_runs(experiment_names=["gtsweep"]))
     again, _ = tracked_sweep(tmp_path, uri)
     assert again.resumed == len(again.summaries)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -11,25 +12,33 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
+from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
+from gtsweep.core.configs import configs_of_sources, register_help_resolver
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.orchestration.results import summary_table
+from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
-from gtsweep.report.tables import Table, write_report
+from gtsweep.report.tables import Table, frame, sample_note, write_report
+
+log = logging.getLogger(__name__)
 
 
 def hydra_main() -> None:
     """Run the Hydra application on ``sys.argv`` (already checked and expanded by :func:`gtsweep.cli.main`)."""
+    register_help_resolver()
     _app()
 
 
-@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base=None)
+@hydra.main(config_path=PRIMARY, config_name=PRIMARY_NAME, version_base=None)
 def _app(cfg: DictConfig) -> None:
-    output_dir = Path(HydraConfig.get().runtime.output_dir)
+    hydra_cfg = HydraConfig.get()
+    keyed_methods(cfg, configs_of_sources(hydra_cfg.runtime.config_sources), hydra_cfg.overrides.task)
+    output_dir = Path(hydra_cfg.runtime.output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
-    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:]}))
+    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:],
+                                                       "overrides": list(hydra_cfg.overrides.task)}))
+    log.info("gtsweep %s in %s", " ".join(sys.argv[1:]), output_dir)
     if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver
         from gtsweep.optimize.driver import main as optimize_main
 
@@ -39,35 +48,57 @@ def _app(cfg: DictConfig) -> None:
             fail(e)
         return
     tracker = None
+    progress = Progress(enabled=cfg.runner.progress)
     try:
         hooks, on_start = (), None
         if cfg.mlflow.enabled:
             from gtsweep.tracking.sweep import SweepTracker
 
-            tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True),
-                                   run_name=f"{output_dir.parent.name}/{output_dir.name}")
+            name, nest_under = parent_run(hydra_cfg, output_dir)
+            tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True), run_name=name,
+                                   nest_under=nest_under)
             hooks = (tracker.log_cell,)
             on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
-        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start)
+        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress)
+        progress.phase("report")
         tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
+        progress.close()
         if tracker is not None:
             tracker.abort(str(e))
         fail(e)
-    print(format_outcome(outcome, tables))
-    print(f"report: {len(files)} tables and plots in {output_dir / 'report'}")
+    progress.close()
+    summary = [format_outcome(outcome, tables), f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
     if tracker is not None:
-        print(f"MLflow: parent run {tracker.parent_id} in {tracker.uri} (make ui, then open http://127.0.0.1:5000)")
+        summary.append(tracker.ui_hint())
+    log.info("\n".join(summary))
+    print("\n".join(summary))
     if outcome.failed:
         print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)
         sys.exit(1)
 
 
+def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:
+    """The name of the sweep's MLflow run (its job's overrides; in a multirun, the swept ones) and the run of the
+    multirun it nests under (None for a single run)."""
+    from hydra.types import RunMode
+
+    from gtsweep.cli.multirun import multirun_record
+    from gtsweep.tracking.tags import overrides_name
+
+    overrides = list(hydra_cfg.overrides.task)
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        return overrides_name(overrides, output_dir.name), None
+    record = multirun_record(Path(hydra_cfg.sweep.dir))
+    swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record.get("swept", [])]
+    return overrides_name(swept or overrides, f"job {hydra_cfg.job.num}"), record.get("parent_run_id")
+
+
 def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
     """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns."""
-    table = summary_table(outcome.summaries)
+    table = frame(outcome.summaries)
     metric = schema.headline(outcome.grid.experiment["name"])
     columns = "selector" if outcome.grid.experiment["name"] == "detection" else "descriptor"
     tables = {}
@@ -76,7 +107,7 @@ def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
         shown = values.map(lambda v: "NA" if pd.isna(v) else f"{v:.2f}").where(part["status"] == "ok", "NA")
         pivot = part.assign(value=shown).pivot_table(index="detector", columns=columns, values="value",
                                                      aggfunc="first", sort=False)
-        tables[f"{metric} ({transform})"] = pivot
+        tables[f"{metric} ({sample_note(part)})"] = pivot
     return tables
 
 

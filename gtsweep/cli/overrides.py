@@ -3,70 +3,103 @@
 Before Hydra parses the command line, gtsweep expands ``group=all`` to every option of a grid group, checks every
 override (unknown method, unknown key, wrong type) so that a mistake costs one clear line instead of a traceback,
 and, with ``resume=true``, points Hydra at the newest earlier output directory of the same command. A method's
-parameters are checked against its registry defaults (its YAML holds only overrides), and an override of one is
-passed to Hydra in its force-add form ``++group.name.params.key=value``, since the key may be absent from the YAML.
+parameters are checked against its registry defaults (its YAML holds only overrides; a method declared in YAML
+has its ``params`` as defaults), and an override of one is passed to Hydra in its force-add form
+``++group.name.params.key=value``, since the key may be absent from the YAML.
+
+Only the overrides are touched, as Hydra's own parser finds them (:mod:`gtsweep.cli.search`): Hydra's flags
+(``--cfg``, ``--info``, ``-m``, ``--config-dir``, ...) may stand anywhere, and ``-sc install=bash`` is left alone.
+Valid choices are the options on Hydra's search path, a user's ``--config-dir`` included.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import sys
-from functools import lru_cache
 from pathlib import Path
 
-import yaml
-
+from gtsweep.cli.search import (
+    GRID_GROUPS,
+    configs,
+    parse,
+    user_searchpath,
+    with_searchpath,
+)
 from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
 from gtsweep.core.registry import compatible
+from gtsweep.orchestration.settings import SETTINGS
 
-GRID_GROUPS = ("detector", "selector", "descriptor", "transform")
 SINGLE_GROUPS = ("dataset", "experiment", "sweeps")
 SWEEP_RECORD = "sweep.json"
 
 
-def group_dir(group: str) -> Path:
-    return PROJECT_DIR / "sweeps" if group == "sweeps" else CONF_DIR / group
+def options(group: str, args=()) -> list[str]:
+    """The options of a config group on the search path of ``args`` (user directories included)."""
+    return configs(args).options(group)
 
 
-def options(group: str) -> list[str]:
-    """The options of a config group: its YAML files."""
-    return sorted(p.stem for p in group_dir(group).glob("*.yaml"))
+def tuned_options(group: str, args=()) -> list[str]:
+    """Configs written by ``experiment=optimize``: ``tuned/<name>`` for ``<root>/<group>/tuned/<name>.yaml``."""
+    return [f"tuned/{name}" for name in configs(args).options(f"{group}/tuned")]
 
 
-def tuned_options(group: str) -> list[str]:
-    """Configs written by ``experiment=optimize``: ``tuned/<name>`` for conf/<group>/tuned/<name>.yaml."""
-    return sorted(f"tuned/{p.stem}" for p in (group_dir(group) / "tuned").glob("*.yaml"))
-
-
-@lru_cache(maxsize=None)
-def _yaml(path: Path) -> dict:
-    return yaml.safe_load(path.read_text()) or {}
+def _rewrite(args: list[str], rewrite) -> list[str]:
+    """``args`` with ``rewrite(overrides)`` in place of its overrides (a shell completion is left alone)."""
+    invocation = parse(args)
+    return list(args) if invocation.passthrough else invocation.with_overrides(rewrite(list(invocation.overrides)))
 
 
 def expand_all(args: list[str]) -> list[str]:
-    """``detector=all`` -> ``detector=[every option]`` for the grid groups."""
-    expanded = []
-    for arg in args:
-        group, _, value = arg.partition("=")
-        if group in GRID_GROUPS and value == "all":
-            arg = f"{group}=[{','.join(options(group))}]"
-        expanded.append(arg)
-    return expanded
+    """``detector=all`` -> ``detector=[every option]`` for the grid groups; ``group=glob(...)`` -> the options it
+    matches, ``group=a,b`` (Hydra's sweeper globs over its main directory only, not the search path)."""
+
+    def expand(overrides):
+        expanded = []
+        for arg in overrides:
+            group, _, value = arg.partition("=")
+            if group in GRID_GROUPS and value == "all":
+                arg = f"{group}=[{','.join(options(group, args))}]"
+            elif group in (*GRID_GROUPS, *SINGLE_GROUPS) and value.startswith("glob("):
+                arg = f"{group}={','.join(_glob(group, arg, args))}"
+            expanded.append(arg)
+        return expanded
+
+    return _rewrite(args, expand)
+
+
+def _glob(group: str, override: str, args) -> list[str]:
+    """The options of ``group`` that ``group=glob(...)`` matches; a one-line error when none does."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    try:
+        matches = OverridesParser.create().parse_override(override).value().filter(options(group, args))
+    except HydraException as e:
+        raise BadInput(f"cannot parse '{override}': {str(e).splitlines()[0]}") from None
+    if not matches:
+        raise BadInput(f"'{override}' matches no {group}; choices: {', '.join(options(group, args))}")
+    return matches
+
+
+def searchpath(args: list[str]) -> list[str]:
+    """A ``hydra.searchpath=[...]`` of the user with gtsweep's entries appended (it would replace them)."""
+    return _rewrite(args, with_searchpath)
 
 
 def _overrides(args: list[str]):
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
 
-    candidates = [a for a in args if "=" in a and not a.startswith("-") or a.startswith("~")]
+    invocation = parse(args)
+    if invocation.passthrough:  # shell completion: Hydra's own business
+        return []
     try:
-        return OverridesParser.create().parse_overrides(candidates)
+        return OverridesParser.create().parse_overrides(list(invocation.overrides))
     except HydraException as e:
         raise BadInput(f"cannot parse the overrides: {str(e).splitlines()[0]}") from None
 
 
-def _values(override) -> list:
+def _values(override, args=()) -> list:
     """The values an override sets (each choice of a sweep; a glob expanded over the group's options)."""
     from hydra.core.override_parser.types import (
         ChoiceSweep,
@@ -77,7 +110,7 @@ def _values(override) -> list:
 
     value = override.value()
     if isinstance(value, Glob):
-        return value.filter(options(override.key_or_group))
+        return value.filter(options(override.key_or_group, args))
     if isinstance(value, ChoiceSweep):
         return list(value.list)
     if isinstance(value, RangeSweep):
@@ -87,8 +120,8 @@ def _values(override) -> list:
     return [value]
 
 
-def _check_group(group: str, values: list) -> None:
-    valid = options(group) + (tuned_options(group) if group in GRID_GROUPS else [])
+def _check_group(group: str, values: list, args) -> None:
+    valid = options(group, args) + (tuned_options(group, args) if group in GRID_GROUPS else [])
     for value in values:
         names = value if isinstance(value, list) else [value]
         if group in SINGLE_GROUPS and isinstance(value, list):
@@ -101,11 +134,16 @@ def _check_group(group: str, values: list) -> None:
 
 
 def _default_option(group: str, args: list[str]) -> str | None:
-    for arg in args:
+    for arg in parse(args).overrides:
         key, _, value = arg.lstrip("+").partition("=")
         if key == group and "," not in value:
             return value
-    for entry in _yaml(CONF_DIR / "config.yaml").get("defaults", []):
+    return _config_default(group, args)
+
+
+def _config_default(group: str, args):
+    """The option of ``group`` in the defaults list of the settings (``config``)."""
+    for entry in configs(args).load("config").get("defaults", []):
         if isinstance(entry, dict) and group in entry:
             return entry[group]
     return None
@@ -129,26 +167,39 @@ def _method(group: str, name: str):
     return REGISTRIES[group].get(name, None)
 
 
+def method_node(group: str, name: str, args=()) -> tuple[dict | None, bool]:
+    """``(node, declared)`` of option ``name`` of a grid group: its config (None if there is no such file), and
+    whether the file declares a new method (its content not keyed by its name, e.g. ``factory: ...``)."""
+    raw = configs(args).load(f"{group}/{name}")
+    raw.pop("defaults", None)
+    if not raw and name not in options(group, args):
+        return None, False
+    keyed = set(raw) == {name}
+    return (raw[name] if keyed else raw), not keyed
+
+
 def _default_value(key: str, args: list[str]):
     """``(found, default)`` of a dotted key: a method parameter's registry default, else the YAML value."""
     parts = key.split(".")
     head = parts[0]
     if head in GRID_GROUPS:
-        path, inner = CONF_DIR / head / f"{parts[1]}.yaml" if len(parts) > 1 else None, parts[1:]
-        if path is None or not path.exists():
-            raise UnknownMethod(head, parts[1] if len(parts) > 1 else "", options(head))
+        node, declared = method_node(head, parts[1], args) if len(parts) > 1 else (None, False)
+        if node is None:
+            raise UnknownMethod(head, parts[1] if len(parts) > 1 else "", options(head, args))
         param = _param_key(key)
-        method = _method(head, parts[1]) if param else None
+        method = _method(head, parts[1]) if param and not declared else None
         if method is not None:
             if param[2] not in method.defaults:
                 method.params({param[2]: None})  # raises: no parameter '...'; its parameters: ...
             return True, method.defaults[param[2]]
+        if param and declared and param[2] not in (node.get("params") or {}):
+            valid = ", ".join(sorted(node.get("params") or {})) or "none"
+            raise BadInput(f"{head} '{parts[1]}' has no parameter '{param[2]}'; its parameters: {valid}")
+        node, inner = (node, parts[2:]) if declared else ({parts[1]: node}, parts[1:])
     elif head in ("dataset", "experiment"):
-        option = _default_option(head, args)
-        path, inner = CONF_DIR / head / f"{option}.yaml", parts[1:]
+        node, inner = configs(args).load(f"{head}/{_default_option(head, args)}"), parts[1:]
     else:
-        path, inner = CONF_DIR / "config.yaml", parts
-    node = _yaml(path)
+        node, inner = configs(args).load("config"), parts
     for part in inner:
         if not isinstance(node, dict) or part not in node:
             return False, None
@@ -163,18 +214,20 @@ def validate(args: list[str]) -> None:
         if key.startswith("hydra") or override.is_delete():
             continue
         if key in GRID_GROUPS or key in SINGLE_GROUPS:
-            _check_group(key, _values(override))
+            _check_group(key, _values(override, args), args)
             continue
         if override.is_add():
             continue
         found, default = _default_value(key, args)
         if not found:
             raise BadInput(f"unknown config key '{key}' (to add a new key write +{key}=...)")
-        for value in _values(override):
+        for value in _values(override, args):
             if default != "???" and not compatible(default, value):
                 kind = type(default).__name__
                 raise BadInput(f"override '{key}={value}': expected {'an' if kind[0] in 'aeiou' else 'a'} {kind} "
                                f"like the default {default!r}, got {type(value).__name__}")
+            if key in SETTINGS:  # its allowed values: before Hydra creates an output directory
+                SETTINGS[key].check(key, value)
 
 
 def force_add(args: list[str]) -> list[str]:
@@ -183,56 +236,58 @@ def force_add(args: list[str]) -> list[str]:
     A method's YAML holds only the parameters a user overrides, and Hydra's struct mode refuses a key absent from
     it. The method must be selected in every job, else the force-add would put it in the grid.
     """
-    rewritten = []
-    for arg in args:
-        key = arg.lstrip("+").partition("=")[0]
-        param = _param_key(key) if "=" in arg and not arg.startswith(("-", "~")) else None
-        if param is None or arg.startswith("+") and not arg.startswith("++"):
-            rewritten.append(arg)
-            continue
-        group, name, _ = param
-        selected = _selected(group, args)
-        if selected is not None and name not in selected:
-            raise BadInput(f"override '{arg}': {group} '{name}' is not selected (selected: "
-                           f"{', '.join(sorted(selected))}); add it, e.g. {group}=[{name},...]")
-        rewritten.append(f"++{arg.lstrip('+')}")
-    return rewritten
+
+    def rewrite(overrides):
+        rewritten = []
+        for arg in overrides:
+            key = arg.lstrip("+").partition("=")[0]
+            param = _param_key(key) if "=" in arg and not arg.startswith("~") else None
+            if param is None or arg.startswith("+") and not arg.startswith("++"):
+                rewritten.append(arg)
+                continue
+            group, name, _ = param
+            selected = _selected(group, args)
+            if selected is not None and name not in selected:
+                raise BadInput(f"override '{arg}': {group} '{name}' is not selected (selected: "
+                               f"{', '.join(sorted(selected))}); add it, e.g. {group}=[{name},...]")
+            rewritten.append(f"++{arg.lstrip('+')}")
+        return rewritten
+
+    return _rewrite(args, rewrite)
 
 
 def _selected(group: str, args: list[str]) -> set[str] | None:
     """The options of a grid group that every job selects (``tuned/sift`` selects ``sift``); None if unknown."""
     from hydra.core.override_parser.types import Glob
 
-    jobs, presets = None, [_default_option("sweeps", [])]
+    jobs, presets = None, [_config_default("sweeps", args)]
     for override in _overrides(args):
         if override.key_or_group == group and not override.is_delete():
             value = override.value()
-            jobs = [value.filter(options(group))] if isinstance(value, Glob) else _values(override)
+            jobs = [value.filter(options(group, args))] if isinstance(value, Glob) else _values(override, args)
         elif override.key_or_group == "sweeps":
-            presets = _values(override)
+            presets = _values(override, args)
     if jobs is None:
         if len(presets) != 1:
             return None
-        entries = _yaml(group_dir("sweeps") / f"{presets[0]}.yaml").get("defaults", []) if presets[0] else []
+        entries = configs(args).load(f"sweeps/{presets[0]}").get("defaults", []) if presets[0] else []
         jobs = [entry[f"override /{group}"] for entry in entries
                 if isinstance(entry, dict) and f"override /{group}" in entry]
     if not jobs:
-        jobs = [entry[group] for entry in _yaml(CONF_DIR / "config.yaml").get("defaults", [])
-                if isinstance(entry, dict) and group in entry]
+        jobs = [_config_default(group, args)]
     names = [{str(n).split("/")[-1] for n in (job if isinstance(job, list) else [job])} for job in jobs]
     return set.intersection(*names) if names else None
 
 
 def place(args: list[str], extra: list[str]) -> list[str]:
-    """``args`` with ``extra`` overrides next to the first override: Hydra's parser takes the overrides as one run
-    of positional arguments, so one appended after a flag such as ``--cfg job`` would be refused."""
-    first = next((i for i, a in enumerate(args) if "=" in a and not a.startswith("-")), None)
-    return [*args, *extra] if first is None else [*args[:first + 1], *extra, *args[first + 1:]]
+    """``args`` with ``extra`` overrides after its own: Hydra's parser takes the overrides as one run of
+    positional arguments, so one appended after a flag such as ``--cfg job`` or ``--info`` would be refused."""
+    return _rewrite(args, lambda overrides: [*overrides, *extra]) if extra else list(args)
 
 
 def sweep_key(args: list[str]) -> str:
     """What identifies "the same command" for resume: the overrides, without resume and hydra settings."""
-    kept = sorted(a for a in args if not a.startswith(("resume=", "hydra.", "-")))
+    kept = sorted(a for a in parse(args).overrides if not a.startswith(("resume=", "hydra.")))
     return hashlib.sha256(json.dumps(kept).encode()).hexdigest()[:16]
 
 
@@ -252,20 +307,36 @@ def resume_args(args: list[str], multirun: bool) -> list[str]:
     return [f"hydra.run.dir={newest.parent}"]
 
 
-def searchpath_override() -> str:
-    """Makes ``sweeps/`` (outside ``conf/``) a config group: presets are selected with ``sweeps=<name>``."""
-    return f"hydra.searchpath=[file://{PROJECT_DIR}]"
+def prepare(args: list[str]) -> list[str]:
+    """The command line Hydra gets: ``all`` expanded, every override checked, method parameters force-added, a
+    user's ``hydra.searchpath`` completed with gtsweep's entries. A :class:`GtsweepError` for a mistake."""
+    args = expand_all(list(args))
+    validate(args)
+    return searchpath(force_add(args))
 
 
-def compose_config(overrides: list[str]):
-    """The composed config for ``overrides``, as ``python -m gtsweep`` would see it (for scripts and tests)."""
-    from hydra import compose, initialize_config_dir
+def compose_config(overrides: list[str], config_dir: str | None = None):
+    """The composed config for ``overrides``, as ``python -m gtsweep [--config-dir DIR]`` would see it (for scripts
+    and tests); YAML-declared methods keyed by their names (:func:`gtsweep.cli.search.keyed_methods`)."""
+    from hydra import compose, initialize_config_module
 
-    overrides = expand_all(list(overrides))
-    validate(overrides)
-    overrides = force_add(overrides)
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        return compose(config_name="config", overrides=[*overrides, searchpath_override()])
+    from gtsweep.cli.search import PRIMARY_MODULE, PRIMARY_NAME, keyed_methods
+    from gtsweep.core.configs import ignore_missing_dir, register_help_resolver
+    from gtsweep.core.paths import DEFAULT_TUNED_ROOT
+
+    args = ["--config-dir", config_dir, *overrides] if config_dir else list(overrides)
+    args = prepare(args)
+    overrides = list(parse(args).overrides)
+    if config_dir:  # compose() has no --config-dir: the same place on the search path, via hydra.searchpath
+        user = [f"file://{Path(config_dir).resolve()}", *(user_searchpath(overrides) or [])]
+        overrides = [o for o in overrides if not o.lstrip("+").startswith("hydra.searchpath=")]
+        overrides = with_searchpath([*overrides, f"hydra.searchpath=[{','.join(user)}]"])
+    ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
+    register_help_resolver()
+    with initialize_config_module(config_module=PRIMARY_MODULE, version_base=None):
+        cfg = compose(config_name=PRIMARY_NAME, overrides=overrides)
+    keyed_methods(cfg, configs(args), overrides)
+    return cfg
 
 
 def fail(error: Exception) -> None:

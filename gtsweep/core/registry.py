@@ -6,10 +6,12 @@ in code; a family subclasses it to add its capabilities (a detector's orientatio
 YAML holds only what a user overrides: :meth:`Method.params` merges it onto the defaults strictly, as glue-factory
 merges a config onto a model's ``default_conf`` — an unknown parameter or a value of the wrong type is a one-line
 :class:`~gtsweep.core.errors.BadInput`, never a silent extra keyword. A :class:`Registry` holds one family, with
-one lookup (:meth:`Registry.get`) that lists the valid names when a name is unknown.
+one lookup (:meth:`Registry.get`) that lists the valid names when a name is unknown. A method can also be declared
+in YAML alone (:meth:`Registry.declare`): a ``factory`` (dotted path), capabilities, and ``params`` as defaults.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import inspect
@@ -124,16 +126,61 @@ def lazy_factory(module: str, attribute: str) -> Callable[..., Any]:
     return create
 
 
+def import_dotted(path, where: str):
+    """The object a dotted path names (``cv2.xfeatures2d.StarDetector_create``); a one-line BadInput otherwise."""
+    if not isinstance(path, str) or not path.strip():
+        raise BadInput(f"{where}: factory must be a dotted path such as cv2.ORB_create, got {path!r}")
+    parts = path.strip().split(".")
+    for split in range(len(parts) - 1, 0, -1):  # the longest importable module, then attributes
+        try:
+            found = importlib.import_module(".".join(parts[:split]))
+        except ImportError:
+            continue
+        try:
+            for attribute in parts[split:]:
+                found = getattr(found, attribute)
+        except AttributeError:
+            raise BadInput(f"{where}: factory '{path}': {'.'.join(parts[:split])} has no '{attribute}'") from None
+        if not callable(found):
+            raise BadInput(f"{where}: factory '{path}' is not callable")
+        return found
+    raise BadInput(f"{where}: factory '{path}': no module '{parts[0]}' can be imported")
+
+
 M = TypeVar("M", bound=Method)
 _REQUIRED = object()
+#: Keys of a method config that are configuration, not capabilities of a declared method.
+CONFIG_KEYS = ("factory", "label", "params", "search_space", "per_detector", "kind", "strengths")
+#: How a family makes a declared method: ``make(name, label, factory, params, capabilities)``.
+Declare = Callable[[str, str, Callable, dict, dict], Any]
+
+
+def spec_declare(spec: type, family: str, wrap: Callable[[Callable], Callable] | None = None) -> Declare:
+    """``make`` for a family whose methods are ``spec`` instances; ``wrap`` turns the factory into ``create``
+    (a plain function's family: :func:`partial_factory`, the function's own defaults under ``params``)."""
+
+    def make(name, label, factory, params, capabilities):
+        defaults = {**(function_defaults(factory, 2) if wrap else {}), **params}
+        return spec(family, name, label, wrap(factory) if wrap else factory, defaults, **capabilities)
+
+    return make
+
+
+def _capabilities(spec: type) -> dict[str, dataclasses.Field]:
+    """The fields a subclass adds to :class:`Method`: what a method of the family declares it gives."""
+    own = {f.name for f in dataclasses.fields(Method)}
+    return {f.name: f for f in dataclasses.fields(spec) if f.init and f.name not in own}
 
 
 class Registry(Generic[M]):
-    """The methods of one family by name."""
+    """The methods of one family by name; ``spec`` is the family's Method class, ``make`` how a method declared
+    in YAML is built (None: the family takes no declarations)."""
 
-    def __init__(self, family: str, methods: Iterable[M] = ()):
+    def __init__(self, family: str, methods: Iterable[M] = (), spec: type = Method, make: Declare | None = None):
         self.family = family
+        self.spec, self.make = spec, make
         self._methods: dict[str, M] = {}
+        self._declared: dict[str, Mapping] = {}
         for method in methods:
             self.register(method)
 
@@ -154,6 +201,37 @@ class Registry(Generic[M]):
             raise UnknownMethod(self.family, str(name), self._methods) from None
 
     __getitem__ = get
+
+    def declare(self, name: str, node: Mapping) -> M:
+        """The method a config declares in YAML: ``factory`` (a dotted path), the family's capabilities (their
+        defaults where it gives none) and ``params`` (its defaults). Registered under ``name``; declaring the same
+        name again replaces a declaration, never a method of the code."""
+        where = f"{self.family} '{name}'"
+        if name in self._methods and name not in self._declared:
+            raise BadInput(f"{where} is built in: a config that declares a factory needs another name")
+        if self._declared.get(name) == node:
+            return self._methods[name]
+        if self.make is None:
+            raise BadInput(f"{where}: {self.family}s cannot be declared in YAML")
+        factory = import_dotted(node.get("factory"), where)
+        fields = _capabilities(self.spec)
+        capabilities = {k: tuple(v) if isinstance(v, list) else v for k, v in node.items() if k not in CONFIG_KEYS}
+        for key, value in capabilities.items():
+            if key not in fields:
+                raise BadInput(f"{where}: unknown key '{key}'; its capabilities: {', '.join(fields) or 'none'}; "
+                               f"other keys: {', '.join(CONFIG_KEYS)}")
+            if fields[key].type == "bool" and not isinstance(value, bool):
+                raise BadInput(f"{where}: {key} must be true or false, got {value!r}")
+        missing = [k for k, f in fields.items() if k not in capabilities and f.default is dataclasses.MISSING
+                   and f.default_factory is dataclasses.MISSING]
+        if missing:
+            raise BadInput(f"{where}: declared in YAML, it needs {', '.join(missing)}")
+        params = node.get("params") or {}
+        if not isinstance(params, Mapping):
+            raise BadInput(f"{where}: params must be a mapping, got {params!r}")
+        method = self.make(name, str(node.get("label") or name), factory, dict(params), capabilities)
+        self._methods[name], self._declared[name] = method, dict(node)
+        return method
 
     def names(self) -> list[str]:
         return list(self._methods)

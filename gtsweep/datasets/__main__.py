@@ -1,6 +1,7 @@
 """``python -m gtsweep.datasets [overrides]``: a data set's pair statistics beside the survey's.
 
-Overrides are Hydra's, e.g. ``dataset=microgps dataset.root=/data`` or ``dataset.n_incremental=100``.
+A Hydra application (``--help``, ``--cfg job``, ``--config-dir`` work): overrides are Hydra's, e.g.
+``dataset=microgps dataset.root=/data`` or ``dataset.n_incremental=100``.
 """
 from __future__ import annotations
 
@@ -9,7 +10,6 @@ import sys
 import numpy as np
 
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import load_dataset, overlap, rotation_deg, synthetic
 
 #: Survey section 5.2 (Micro-GPS): overlap mean / min, rotation mean.
@@ -48,20 +48,37 @@ def format_statistics(name: str, stats: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from hydra import compose, initialize_config_dir
-    from hydra.errors import HydraException
+    """Run the Hydra application on ``argv`` (default: the command line)."""
+    import hydra
 
-    overrides = list(sys.argv[1:] if argv is None else argv)
+    from gtsweep.core.configs import register_help_resolver
+
+    register_help_resolver()
+    codes = []
+
+    @hydra.main(config_path="pkg://gtsweep.datasets.primary", config_name="dataset_stats", version_base=None)
+    def app(cfg) -> None:
+        codes.append(describe(cfg))
+
+    saved = sys.argv
+    sys.argv = [saved[0], *(saved[1:] if argv is None else argv)]
     try:
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-            cfg = compose(config_name="dataset_stats", overrides=overrides)
+        app()
+    finally:
+        sys.argv = saved
+    return codes[0] if codes else 0
+
+
+def describe(cfg) -> int:
+    """Print the statistics of ``cfg.dataset``; 2 after a one-line error."""
+    try:
         dataset = load_dataset(cfg.dataset)
         print(format_statistics(dataset.name, pair_statistics(dataset)))
         seconds = synthetic.generation_seconds(dataset, cfg.dataset.cache_dir) if dataset.name == "synthetic" \
             else None
         if seconds is not None:
             print(f"rendered in {seconds:.1f} s (cached under {cfg.dataset.cache_dir}/datasets/)")
-    except (GtsweepError, HydraException) as error:
+    except GtsweepError as error:
         print(f"gtsweep.datasets: error: {str(error).splitlines()[0]}", file=sys.stderr)
         return 2
     if dataset.skipped:

@@ -198,12 +198,14 @@ class TransformSpec(Method):
         return self.strength.check(where, value)
 
 
-def _transform(name: str, label: str, function) -> TransformSpec:
+def _transform(name: str, label: str, function, params=None, capabilities=None) -> TransformSpec:
+    """A transform ``function(image, strength, [seed,] **params)`` as a registry entry (``params`` over its own
+    defaults); one declared in YAML takes any strength."""
     defaults = function_defaults(function, 2)
     seeded = "seed" in defaults
     defaults.pop("seed", None)  # the seed comes from synthesize(), per image and strength, not from a config
-    return TransformSpec("transform", name, label, partial_factory(function), defaults, seeded=seeded,
-                         strength=STRENGTH_RANGES[name])
+    return TransformSpec("transform", name, label, partial_factory(function), {**defaults, **(params or {})},
+                         seeded=seeded, strength=STRENGTH_RANGES.get(name, Range()))
 
 
 TRANSFORMS: Registry[TransformSpec] = Registry("transform", [
@@ -211,7 +213,7 @@ TRANSFORMS: Registry[TransformSpec] = Registry("transform", [
     _transform("translation", "Translation", translate),
     _transform("noise", "Noise", add_noise),
     _transform("gamma", "Gamma", adjust_gamma),
-])
+], make=_transform)
 
 STRENGTHS: dict[str, list[float]] = {
     "rotation": [0, 15, 30, 45, 60, 90, 120, 150, 180],

@@ -4,8 +4,9 @@ One Optuna study per selected detector (objective ``repeatability``) or per ``[d
 (objective ``pose_success``): :mod:`~gtsweep.optimize.targets`. Trials run on the sweep's executor (Ray tasks, or
 in-process with ``runner.backend=serial``): :mod:`~gtsweep.optimize.study`. The study lives in an RDB storage
 (sqlite by default): rerunning the same command continues it. Every trial is an MLflow child run of the study's
-run (:mod:`gtsweep.tracking.study`). The best parameters are written as ``conf/<group>/tuned/<name>.yaml``, a
-config file Hydra selects with ``detector=[tuned/<name>]`` (:mod:`~gtsweep.optimize.output`).
+run (:mod:`gtsweep.tracking.study`). The best parameters are written as ``./tuned/<group>/tuned/<name>.yaml`` in
+the working directory (``experiment.tuned_root``), a config file Hydra selects with ``detector=[tuned/<name>]``
+(``./tuned`` is on the search path before the package's own tuned configs; :mod:`~gtsweep.optimize.output`).
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import time
 from pathlib import Path
 
 from gtsweep.core.config import plain
-from gtsweep.core.paths import CONF_DIR
+from gtsweep.core.paths import DEFAULT_TUNED_ROOT
 from gtsweep.optimize.output import (
     describe_best,
     format_summary,
@@ -48,7 +49,7 @@ def main(cfg, output_dir: str | Path) -> list[dict]:
     shards = load_shards(dataset, job_transforms(settings), images="optimisation")  # a trial is one task
     executor = make_executor(runner_cfg, retries=0)  # a trial that kills its worker fails; the study goes on
     shards = executor.put(shards)  # once for all trials of all studies
-    root = Path(settings.get("tuned_root") or CONF_DIR)
+    root = Path(settings.get("tuned_root") or DEFAULT_TUNED_ROOT).resolve()
     mlflow_cfg = plain(cfg.get("mlflow")) or {}
     summaries = []
     for target in targets:

@@ -26,6 +26,7 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.orchestration import tasks
 from gtsweep.orchestration.cache import KeypointCache
 from gtsweep.orchestration.executor import describe_error
+from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.shards import shard_kind
 
 OBJECTIVES = ("repeatability", "pose_success")
@@ -42,6 +43,7 @@ def evaluate(shards: dict, job: dict) -> dict:
     """
     start = time.perf_counter()
     try:
+        declare(job.get("declared") or {})
         metrics = trial_metrics(_rows(shards, job), job["objective"])
     except Exception as e:  # a parameter set the method rejects, or a bug: this trial fails, the study goes on
         return {"error": describe_error(e)}

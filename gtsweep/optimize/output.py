@@ -1,8 +1,9 @@
-"""What a study leaves behind: the tuned config (``conf/<group>/tuned/<name>.yaml``, loadable as
+"""What a study leaves behind: the tuned config (``./tuned/<group>/tuned/<name>.yaml`` by default, loadable as
 ``<group>=[tuned/<name>]``) and its summary."""
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Mapping
@@ -47,10 +48,24 @@ def describe_best(best, settings: Mapping) -> str:
     return f"pose success {best.value:.4f} (precision {m.get('precision', float('nan')):.4f})"
 
 
+def storage_label(storage: str) -> str:
+    """The study's storage as a tuned config's header names it: no path of this machine (a SQLite file relative
+    to the working directory, or by its name only), no password."""
+    if not storage.startswith("sqlite:///"):
+        from gtsweep.tracking.study import safe_storage
+
+        return safe_storage(storage)
+    path = storage[len("sqlite:///"):]
+    if not os.path.isabs(path):
+        return storage
+    relative = os.path.relpath(path)
+    return f"sqlite:///{relative if not relative.startswith('..') else os.path.basename(path)}"
+
+
 def tuned_header(target: Target, settings: Mapping, name: str, best, complete: int, fingerprint: str) -> list[str]:
     """The comment lines on top of a tuned config: which study, which trial, on what data."""
     return [f"Tuned by gtsweep experiment=optimize on {time.strftime('%Y-%m-%d %H:%M:%S')}: study '{name}'",
-            f"({settings['storage']}), best of {complete} complete trials: trial {best.number},",
+            f"({storage_label(settings['storage'])}), best of {complete} complete trials: trial {best.number},",
             f"objective {settings['objective']}: {describe_best(best, settings)}.",
             f"Data set fingerprint {fingerprint}." + (f" Tuned on {target.detector} keypoints."
                                                        if target.group == "descriptor" else ""),

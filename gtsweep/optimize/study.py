@@ -55,7 +55,7 @@ def trial_job(target: Target, settings: Mapping, values: Mapping, seed: int, cac
     return {"objective": settings["objective"], "detector": target.detector, "detector_params": detector_params,
             "descriptor": target.descriptor, "descriptor_params": tuned if target.group == "descriptor" else {},
             "selector": settings["selector"]["name"], "selector_params": dict(settings["selector"].get("params") or {}),
-            "transforms": job_transforms(settings), "seed": seed, "cache_dir": cache_dir,
+            "transforms": job_transforms(settings), "seed": seed, "cache_dir": cache_dir, "declared": target.declared,
             "settings": {k: settings.get(k) for k in ("min_keypoints", "iou_threshold", "ratio", "mutual", "pose")}}
 
 

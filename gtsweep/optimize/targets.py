@@ -2,14 +2,14 @@
 (``pose_success``), with its defaults, search space and study name."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping
 
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.optimize.search_space import parse_space
 from gtsweep.optimize.settings import job_transforms
-from gtsweep.orchestration.grid import resolve_group
+from gtsweep.orchestration.grid import declared_methods, resolve_group
 
 
 @dataclass
@@ -25,6 +25,7 @@ class Target:
     space: dict  # the declared search space
     distributions: dict
     detector_params: dict
+    declared: dict = field(default_factory=dict)  # methods declared in YAML, for the processes that run trials
 
     @property
     def label(self) -> str:
@@ -41,8 +42,9 @@ def build_targets(cfg: Mapping, settings: Mapping) -> list[Target]:
     if not detectors:
         raise BadInput("experiment=optimize needs at least one detector, e.g. detector=[sift]")
     if settings["objective"] == "repeatability":
-        return [_target("detector", name, name, None, detectors[name], detectors[name].get("search_space"),
-                        (DETECTORS.get(name).count_param or "",)) for name in detectors]
+        targets = [_target("detector", name, name, None, detectors[name], detectors[name].get("search_space"),
+                           (DETECTORS.get(name).count_param or "",)) for name in detectors]
+        return _with_declared(targets, {"detector": detectors})
     descriptors = resolve_group(cfg, "descriptor", search_space=True)
     pairings = plain(cfg.get("pairings"))
     if not descriptors:
@@ -65,6 +67,13 @@ def build_targets(cfg: Mapping, settings: Mapping) -> list[Target]:
                          defaults=descriptor_params(node, detector))
         target.detector_params = dict(detectors[detector].get("params") or {})
         targets.append(target)
+    return _with_declared(targets, {"detector": detectors, "descriptor": descriptors})
+
+
+def _with_declared(targets: list[Target], groups: dict) -> list[Target]:
+    declared = declared_methods(groups)
+    for target in targets:
+        target.declared = declared
     return targets
 
 

@@ -9,7 +9,9 @@ inputs give bit-identical results on either backend.
 from __future__ import annotations
 
 import functools
+import importlib.util
 import logging
+import sys
 import traceback
 from collections import deque
 from typing import Any, Callable, Iterator, Mapping
@@ -17,6 +19,7 @@ from typing import Any, Callable, Iterator, Mapping
 from gtsweep.core.errors import BadInput, GtsweepError
 
 BACKENDS = ("ray", "serial")
+log = logging.getLogger(__name__)
 
 
 def backend(runner_cfg: Mapping) -> str:
@@ -174,6 +177,48 @@ def with_opencv_threads(function: Callable, threads: int | None) -> Callable:
     return run
 
 
+RAY_LOG_LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING, "error": logging.ERROR}
+
+
+def ray_options(runner_cfg: Mapping) -> dict:
+    """``ray.init`` options from ``runner``: the dashboard only when asked (``runner.dashboard=true``, which needs
+    ``pip install 'ray[default]'``), Ray's own log lines at ``runner.ray_log_level`` (default ``error``: its
+    warnings, such as the token-authentication notice of every local start, only when asked)."""
+    level = runner_cfg.get("ray_log_level") or "error"
+    if level not in RAY_LOG_LEVELS:
+        raise BadInput(f"runner.ray_log_level must be one of {', '.join(RAY_LOG_LEVELS)}, got {level!r}")
+    dashboard = bool(runner_cfg.get("dashboard", False))
+    if dashboard:
+        missing = _dashboard_missing()
+        if missing:
+            raise BadInput(f"runner.dashboard=true needs Ray's dashboard: pip install 'ray[default]' ({missing})")
+    options = {"include_dashboard": dashboard, "logging_level": RAY_LOG_LEVELS[level], "log_to_driver": True}
+    if dashboard:
+        options["dashboard_host"] = "127.0.0.1"
+    if runner_cfg.get("runtime_env"):
+        options["runtime_env"] = dict(runner_cfg["runtime_env"])
+    return options
+
+
+def _dashboard_missing() -> str | None:
+    """Why Ray's dashboard cannot start (the minimal ``ray`` lacks its packages), else None."""
+    try:
+        from ray._private.utils import get_dashboard_dependency_error
+
+        error = get_dashboard_dependency_error()
+    except ImportError as e:  # a Ray without that helper: try the dashboard's own package
+        error = e if importlib.util.find_spec("aiohttp") is None else None
+    return None if error is None else str(error)
+
+
+def _report_dashboard(context) -> None:
+    url = getattr(context, "dashboard_url", "") or ""
+    if url:
+        url = url if "://" in url else f"http://{url}"
+        log.info("Ray dashboard: %s", url)
+        print(f"gtsweep: Ray dashboard at {url}", file=sys.stderr)
+
+
 def connect(runner_cfg: Mapping) -> None:
     """Start or join Ray once per process.
 
@@ -189,17 +234,15 @@ def connect(runner_cfg: Mapping) -> None:
         if address in ("local", "auto") or address.split("://")[-1] == current:
             return
         ray.shutdown()  # connected elsewhere: the requested cluster wins
-    options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
-    if runner_cfg.get("runtime_env"):
-        options["runtime_env"] = dict(runner_cfg["runtime_env"])
+    options = ray_options(runner_cfg)
     if address == "local":
         num_cpus = runner_cfg.get("num_cpus")
         if num_cpus is not None and (not isinstance(num_cpus, int) or num_cpus < 1):
             raise BadInput(f"runner.num_cpus must be a positive integer or null, got {num_cpus!r}")
-        ray.init(address="local", num_cpus=num_cpus, **options)
+        _report_dashboard(ray.init(address="local", num_cpus=num_cpus, **options))
         return
     try:
-        ray.init(address=address, **options)
+        _report_dashboard(ray.init(address=address, **options))
     except (ConnectionError, RuntimeError, ValueError) as e:
         hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
         raise BadInput(f"cannot join the Ray cluster at '{address}': {str(e).splitlines()[0]}{hint}") from None

@@ -2,7 +2,9 @@
 
 Each method's YAML params are merged onto its registry defaults (the full effective parameters, as results and
 MLflow record them) and the method is built once, so that a parameter it rejects stops the sweep here, in one
-line. A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell
+line. A node with a ``factory`` declares a new method (:meth:`~gtsweep.core.registry.Registry.declare`); the
+grid carries these declarations (:attr:`Grid.declared`) to every process that runs its tasks.
+A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell
 only when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work.
 """
 from __future__ import annotations
@@ -60,6 +62,13 @@ class Grid:
     transforms: dict[str, dict]
     cells: list[Cell] = field(default_factory=list)
 
+    @property
+    def declared(self) -> dict[str, dict[str, dict]]:
+        """The methods declared in YAML, ``{group: {name: node}}``: :func:`declare` them where tasks run."""
+        groups = {"detector": self.detectors, "selector": self.selectors, "descriptor": self.descriptors,
+                  "transform": self.transforms}
+        return declared_methods(groups)
+
     def cell_config(self, cell: Cell, dataset_fingerprint: str, seed: int) -> dict:
         """Everything that determines a cell's numbers."""
         return {
@@ -81,6 +90,19 @@ class Grid:
 NOT_RESULTS = ("search_space",)
 
 
+def declared_methods(groups: Mapping[str, Mapping[str, dict]]) -> dict[str, dict[str, dict]]:
+    """``{group: {name: node}}`` of the nodes that declare a method (they have a ``factory``)."""
+    return {group: {name: node for name, node in nodes.items() if "factory" in node}
+            for group, nodes in groups.items() if any("factory" in node for node in nodes.values())}
+
+
+def declare(declared: Mapping[str, Mapping[str, dict]]) -> None:
+    """Register the declared methods in this process's registries (a Ray worker's too)."""
+    for group, nodes in declared.items():
+        for name, node in nodes.items():
+            REGISTRIES[group].declare(name, node)
+
+
 def resolve_group(cfg: Mapping, group: str, search_space: bool = False) -> dict[str, dict]:
     """The options of grid group ``group`` as ``{name: node}``, sorted, without keys that do not change results
     (the optimiser asks for the ``search_space`` too).
@@ -100,6 +122,8 @@ def resolve_group(cfg: Mapping, group: str, search_space: bool = False) -> dict[
         if not isinstance(settings, dict):
             raise BadInput(f"{group}.{name} must be a mapping with 'params', got {settings!r}")
         settings = {k: v for k, v in settings.items() if search_space or k not in NOT_RESULTS}
+        if "factory" in settings:
+            registry.declare(name, {k: v for k, v in settings.items() if k != "search_space"})
         if group == "transform":
             _check_transform(name, settings)
             if settings["kind"] == "pairs":

@@ -40,6 +40,7 @@ def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
             low, high = schema.interval(metric, rows)
             summary["metrics"][f"{metric.name}_ci_low"], summary["metrics"][f"{metric.name}_ci_high"] = low, high
     summary["n_images"] = int(rows["image"].nunique()) if "image" in rows else 0
+    summary["n_views"] = int(rows["view"].nunique()) if "view" in rows else int(len(rows))  # pairs, or views
     for step in schema.STEP_KEYS:
         if step in rows and rows[step].notna().any():
             summary[f"by_{step}"] = {repr(float(value)): aggregates(group)

@@ -6,7 +6,6 @@ are; the ``on_cell`` callback then writes it (and logs it), so a killed sweep lo
 """
 from __future__ import annotations
 
-import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Callable
@@ -65,21 +64,22 @@ def plan(grid: Grid, n_shards: dict[str, int], pending: set[str]) -> list[Detect
 
 
 def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], runner_cfg: dict, seed: int,
-        cache_dir: str | None, on_cell: Callable[[Cell, dict], None]) -> RunStats:
+        cache_dir: str | None, on_cell: Callable[[Cell, dict], None],
+        on_started: Callable[[], None] | None = None) -> RunStats:
     """Run ``jobs``; ``on_cell(cell, outcome)`` is called as each cell finishes, with ``outcome`` either
-    ``{"rows": DataFrame}`` or ``{"na": reason}`` / ``{"error": message}``."""
+    ``{"rows": DataFrame}`` or ``{"na": reason}`` / ``{"error": message}`` (and when its tasks ran);
+    ``on_started()`` once the executor (Ray) is up."""
     executor = make_executor(runner_cfg)
+    if on_started is not None:
+        on_started()
     stats = RunStats(detection_tasks=len(jobs), pairing_tasks=sum(len(j.pairings) for j in jobs))
     tracker = _CellTracker(jobs, on_cell)
-    total = stats.detection_tasks + stats.pairing_tasks
-    with _progress(total, runner_cfg.get("progress", True)) as bar:
-        submit(executor, grid, shards, jobs, seed, cache_dir)
-        for job, result in executor.results():
-            if isinstance(job, DetectionJob):
-                stats.cache_hits += result.get("hits", 0)
-                stats.cache_misses += result.get("misses", 0)
-            tracker.add(job, result)
-            bar.update(1)
+    submit(executor, grid, shards, jobs, seed, cache_dir)
+    for job, result in executor.results():
+        if isinstance(job, DetectionJob):
+            stats.cache_hits += result.get("hits", 0)
+            stats.cache_misses += result.get("misses", 0)
+        tracker.add(job, result)
     return stats
 
 
@@ -99,19 +99,29 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
 
 
 class _CellTracker:
-    """Collects shard results per cell and reports each cell once all its shards are in."""
+    """Collects shard results per cell and reports each cell once all its shards are in, with when its tasks ran
+    (a pairing cell's include the detection tasks that fed it)."""
 
     def __init__(self, jobs: list[DetectionJob], on_cell):
         self.on_cell = on_cell
         self.remaining: dict[str, int] = defaultdict(int)
         self.parts: dict[str, dict[int, dict]] = defaultdict(dict)
         self.cells: dict[str, Cell] = {}
+        self.fed_by: dict[int, DetectionJob] = {}  # id(pairing job) -> its detection job
+        self.ran: dict[int, tuple] = {}  # id(detection job) -> (started, ended)
         for job in jobs:
             for cell in ([job.cell] if job.cell else []) + [p.cell for p in job.pairings]:
                 self.remaining[cell.key] += 1
                 self.cells[cell.key] = cell
+            self.fed_by.update((id(p), job) for p in job.pairings)
 
     def add(self, job, result: dict) -> None:
+        if isinstance(job, DetectionJob):
+            self.ran[id(job)] = (result.get("started"), result.get("ended"))
+        elif id(job) in self.fed_by:
+            started, ended = self.ran.get(id(self.fed_by[id(job)]), (None, None))
+            result = {**result, "started": _first(started, result.get("started"), min),
+                      "ended": _first(ended, result.get("ended"), max)}
         cell = job.cell
         if cell is None:  # a detection job that only feeds pairing cells
             return
@@ -121,21 +131,30 @@ class _CellTracker:
             self.on_cell(cell, _merge(self.parts.pop(cell.key)))
 
 
+def _first(a, b, pick):
+    values = [v for v in (a, b) if v is not None]
+    return pick(values) if values else None
+
+
 def _merge(parts: dict[int, dict]) -> dict:
+    """A cell's outcome from its shards' results, with the span of its tasks (``started``, ``ended``)."""
+    starts = [p["started"] for p in parts.values() if p.get("started") is not None]
+    ends = [p["ended"] for p in parts.values() if p.get("ended") is not None]
+    ran = {"started": min(starts), "ended": max(ends)} if starts and ends else {}
     for shard in sorted(parts):
         if "error" in parts[shard]:
-            return {"error": parts[shard]["error"]}
+            return {"error": parts[shard]["error"], **ran}
     for shard in sorted(parts):
         if "na" in parts[shard]:
-            return {"na": parts[shard]["na"]}
+            return {"na": parts[shard]["na"], **ran}
     rows = [row for shard in sorted(parts) for row in parts[shard]["rows"]]
-    return {"rows": pd.DataFrame.from_records(rows)}
+    return {"rows": pd.DataFrame.from_records(rows), **ran}
 
 
 def _detection_args(grid: Grid, job: DetectionJob, seed: int, cache_dir):
     method = {"detector": job.detector, "detector_cfg": grid.detectors[job.detector],
               "selector": job.selector, "selector_cfg": grid.selectors[job.selector]}
-    return job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir
+    return job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir, grid.declared
 
 
 def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):
@@ -143,13 +162,4 @@ def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):
 
     cell = pairing.cell
     params = descriptor_params(grid.descriptors[cell.descriptor], cell.detector)
-    return cell.detector, cell.descriptor, params, grid.experiment, seed
-
-
-def _progress(total: int, enabled: bool):
-    """A tqdm bar (a context manager) on an interactive terminal; silent in CI logs and pipes."""
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="task", desc="gtsweep", file=sys.stderr,
-                disable=not (enabled and sys.stderr.isatty()), mininterval=0.5)
-
+    return cell.detector, cell.descriptor, params, grid.experiment, seed, grid.declared

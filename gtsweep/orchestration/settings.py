@@ -32,6 +32,8 @@ SETTINGS = {
     "runner.shard_size": _COUNT,
     "runner.opencv_threads": Range(1, None, integer=True, optional=True),
     "runner.progress": Choice((True, False)),
+    "runner.dashboard": Choice((True, False)),
+    "runner.ray_log_level": Choice(("debug", "info", "warning", "error")),
     "cache.enabled": Choice((True, False)),
     "mlflow.enabled": Choice((True, False)),
     "report.plots": Choice((True, False)),

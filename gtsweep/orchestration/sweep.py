@@ -5,6 +5,7 @@ This is the driver. It alone writes result files (and, through ``hooks``, to MLf
 from __future__ import annotations
 
 import json
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,7 @@ from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.cache import cache_directory
 from gtsweep.orchestration.executor import backend
 from gtsweep.orchestration.grid import Cell, Grid, build_grid
+from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
 from gtsweep.orchestration.runner import RunStats, plan, run
 from gtsweep.orchestration.shards import load_shards
@@ -24,6 +26,7 @@ from gtsweep.orchestration.shards import load_shards
 #: Called as ``hook(cell, summary, rows)`` for every cell as it finishes, and for cells kept from an earlier run
 #: (rows None for those and for NA cells).
 CellHook = Callable[[Cell, dict, "pd.DataFrame | None"], None]
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -41,8 +44,10 @@ class SweepOutcome:
 
 
 def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) -> dict:
-    """The summary written for a cell: methods, experiment, status (ok, na, error), reason and aggregate metrics."""
-    summary = {"key": cell.key, "methods": cell.methods, "hash": cell_hash, "experiment": experiment}
+    """The summary written for a cell: methods, experiment, status (ok, na, error), reason and aggregate metrics,
+    and when its tasks ran (``started``, ``ended``: seconds since the epoch)."""
+    summary = {"key": cell.key, "methods": cell.methods, "hash": cell_hash, "experiment": experiment,
+               **{k: outcome[k] for k in ("started", "ended") if outcome.get(k) is not None}}
     if "rows" in outcome:
         return {**summary, "status": "ok", **summarize(outcome["rows"], experiment)}
     if "na" in outcome:
@@ -51,14 +56,21 @@ def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) 
 
 
 def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
-              on_start: Callable[[Grid, str], None] | None = None) -> SweepOutcome:
-    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete there (same config) are kept."""
+              on_start: Callable[[Grid, str], None] | None = None, progress: Progress | None = None) -> SweepOutcome:
+    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete there (same config) are kept.
+    ``progress`` shows the phases and counts the cells (none: the job's log only)."""
     start = time.perf_counter()
+    progress = progress or Progress(enabled=False)
     grid = build_grid(cfg)
     runner_cfg = plain(cfg.get("runner")) or {}
+    log.info("grid: %d cells (%s experiment), %d detector(s), %d selector(s), %d descriptor(s), %d transform(s)",
+             len(grid.cells), grid.experiment["name"], len(grid.detectors), len(grid.selectors),
+             len(grid.descriptors), len(grid.transforms))
     backend(runner_cfg)  # checked before the data set is loaded
+    progress.phase("render data set")
     dataset = load_dataset(cfg["dataset"])
     fingerprint = dataset.fingerprint()
+    log.info("data set '%s', fingerprint %s", dataset.name, fingerprint)
     seed = int(cfg.get("seed", 0))
     store = ResultStore(output_dir)
     if on_start is not None:
@@ -71,6 +83,9 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         rows = outcome.get("rows")
         store.write_cell(cell.key, summary, rows)
         summaries[cell.key] = summary
+        log.info("cell %s: %s%s", cell.key, summary["status"], f" ({summary['reason']})" if summary.get("reason")
+                 else "")
+        progress.cell_done()
         for hook in hooks:
             hook(cell, summary, rows)
 
@@ -87,12 +102,22 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
             pending.add(cell.key)
     # Load (and so check) every image before the first result file is written: bad data stops the run clean.
     shards = load_shards(dataset, grid.transforms, int(runner_cfg.get("shard_size", 4))) if pending else {}
-    for cell in not_applicable:
-        finish(cell, {"na": cell.na_reason})
+    log.info("%d cell(s) to evaluate, %d kept from an earlier run, %d not applicable", len(pending), resumed,
+             len(not_applicable))
+
+    def start_evaluating() -> None:  # the executor is up: NA cells are written, the bar counts every cell
+        progress.phase("evaluate", total=len(grid.cells), done=resumed)
+        for cell in not_applicable:
+            finish(cell, {"na": cell.na_reason})
+
     stats = RunStats()
     if pending:
         jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
-        stats = run(grid, shards, jobs, runner_cfg, seed, cache_directory(cfg), finish)
+        if backend(runner_cfg) == "ray":
+            progress.phase("start Ray")
+        stats = run(grid, shards, jobs, runner_cfg, seed, cache_directory(cfg), finish, on_started=start_evaluating)
+    else:
+        start_evaluating()
     ordered = [summaries[cell.key] for cell in grid.cells]
     outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],

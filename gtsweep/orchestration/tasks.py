@@ -10,6 +10,7 @@ parameter OpenCV rejects, a bug) as ``{"error": reason}`` (:func:`failure`).
 from __future__ import annotations
 
 import math
+import time
 
 from gtsweep.core.errors import NotApplicable
 from gtsweep.core.seeds import stable_seed
@@ -17,6 +18,7 @@ from gtsweep.evaluation.evaluate import detection_metrics, pairing_metrics
 from gtsweep.evaluation.views import views
 from gtsweep.orchestration.cache import KeypointCache, detect_cached
 from gtsweep.orchestration.executor import describe_error
+from gtsweep.orchestration.grid import declare
 
 
 def failure(error: Exception) -> dict:
@@ -27,34 +29,45 @@ def failure(error: Exception) -> dict:
     return {"error": describe_error(error)}
 
 
+def _timed(started: float, result: dict) -> dict:
+    """``result`` with the task's wall-clock start and end (seconds since the epoch): a cell's compute time."""
+    return {**result, "started": started, "ended": time.time()}
+
+
 def detect_shard(shard: dict, transform: str, transform_cfg: dict, method: dict, experiment: dict, seed: int,
-                 cache_dir: str | None):
+                 cache_dir: str | None, declared: dict | None = None):
     """Detect and select on every view of a shard; returns ``(payload, summary)``.
 
     ``method``: detector, detector_cfg, selector, selector_cfg. ``payload`` (for the pairing tasks) holds the
-    keypoints and rows per view; ``summary`` (for the driver) holds the rows and the cache hits and misses; a miss
-    is one detector call.
+    keypoints and rows per view; ``summary`` (for the driver) holds the rows, the cache hits and misses (a miss
+    is one detector call) and when the task ran. ``declared``: the grid's methods declared in YAML.
     """
+    started = time.time()
     cache = KeypointCache(cache_dir)
     try:
+        declare(declared or {})
         keypoints, rows = detect_views(cache, shard, transform, transform_cfg, method, experiment, seed)
     except Exception as e:  # reported with the cell; the sweep goes on
         failed = {**failure(e), "hits": cache.hits, "misses": cache.misses}
-        return failed, failed
+        return failed, _timed(started, failed)
     summary = {"rows": rows, "hits": cache.hits, "misses": cache.misses}
-    return {"keypoints": keypoints, "rows": rows}, summary
+    return {"keypoints": keypoints, "rows": rows}, _timed(started, summary)
 
 
 def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict, detector: str, descriptor: str,
-               descriptor_params: dict, experiment: dict, seed: int) -> dict:
-    """Describe, match and estimate poses for every view of a shard; returns ``{"rows": [...]}`` or a failure."""
+               descriptor_params: dict, experiment: dict, seed: int, declared: dict | None = None) -> dict:
+    """Describe, match and estimate poses for every view of a shard; returns ``{"rows": [...]}`` or a failure,
+    with when the task ran."""
+    started = time.time()
     if "keypoints" not in detection:
-        return {k: v for k, v in detection.items() if k in ("na", "error")}
+        return _timed(started, {k: v for k, v in detection.items() if k in ("na", "error")})
     try:
-        return {"rows": pair_views(shard, transform, transform_cfg, detection["keypoints"], detection["rows"],
-                                   detector, descriptor, descriptor_params, experiment, seed)}
+        declare(declared or {})
+        return _timed(started, {"rows": pair_views(shard, transform, transform_cfg, detection["keypoints"],
+                                                   detection["rows"], detector, descriptor, descriptor_params,
+                                                   experiment, seed)})
     except Exception as e:
-        return failure(e)
+        return _timed(started, failure(e))
 
 
 def detect_views(cache: KeypointCache, shard: dict, transform: str, transform_cfg: dict, method: dict,

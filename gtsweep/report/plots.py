@@ -1,6 +1,9 @@
 """Plots of a sweep (matplotlib, PNG): metrics against transform strength, success against the number of reference
 features (survey Table 7 as curves), and detector x descriptor heat maps of pose success (Tables 4 and 5). Which
-metrics, their axes and ranges come from :mod:`gtsweep.evaluation.schema`."""
+metrics, their axes and ranges come from :mod:`gtsweep.evaluation.schema`.
+
+Methods often score the same (pose success 1.0 at small rotations): each line gets its own marker and dash pattern
+and a small sideways offset, so that lines lying on top of each other stay visible."""
 from __future__ import annotations
 
 from collections import defaultdict
@@ -29,6 +32,31 @@ def _series_name(methods: dict) -> str:
 def _steps(by_step: dict, metric: str):
     points = sorted((float(k), v.get(metric)) for k, v in by_step.items() if v.get(metric) is not None)
     return [p[0] for p in points], [p[1] for p in points]
+
+
+MARKERS = "osD^vP*Xph<>"
+DASHES = ["-", "--", "-.", ":"]
+SPREAD = 0.05  # the lines' sideways offsets span this share of the x range (of its decades on a log axis)
+
+
+def _plot_lines(ax, cells: list[dict], step_key: str, metric: str, log_x: bool = False) -> None:
+    """One line per cell, each with its own marker and dashes and a small offset along x (a factor on log x)."""
+    series = [(_series_name(s["methods"]), *_steps(s[f"by_{step_key}"], metric)) for s in cells]
+    series = [(name, xs, ys) for name, xs, ys in sorted(series) if xs]
+    every = [x for _, xs, _ in series for x in xs]
+    if not every:
+        return
+    low, high = (np.log10(min(every)), np.log10(max(every))) if log_x else (min(every), max(every))
+    width = (high - low) or 1.0
+    for i, (name, xs, ys) in enumerate(series):
+        shift = (i - (len(series) - 1) / 2) * SPREAD * width / max(len(series) - 1, 1)
+        xs = [x * 10 ** shift for x in xs] if log_x else [x + shift for x in xs]
+        ax.plot(xs, ys, marker=MARKERS[i % len(MARKERS)], linestyle=DASHES[i % len(DASHES)], linewidth=1.2,
+                markersize=5, markerfacecolor="none" if i % 2 else None, alpha=0.85, label=name)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    if len(series) > 1:
+        ax.annotate("lines offset sideways\nto stay visible", xy=(1.01, 0.0), xycoords="axes fraction", fontsize=7,
+                    color="0.4", va="bottom")
 
 
 def _axis(metric: str) -> str:
@@ -65,14 +93,12 @@ def plot_strength_curves(summaries: list[dict], out_dir: Path) -> list[Path]:
                 groups[(s["methods"]["transform"], metric)].append(s)
     files = []
     for (transform, metric), cells in sorted(groups.items()):
-        fig, ax = plt.subplots(figsize=(7, 4.5))
-        for s in sorted(cells, key=lambda c: _series_name(c["methods"])):
-            xs, ys = _steps(s["by_strength"], metric)
-            ax.plot(xs, ys, marker="o", label=_series_name(s["methods"]))
-        ax.set(xlabel=STRENGTH_AXIS.get(transform, "strength"), ylabel=_axis(metric), title=f"{metric}: {transform}")
+        fig, ax = plt.subplots(figsize=(9, 4.5))
+        _plot_lines(ax, cells, "strength", metric)
+        ax.set(xlabel=STRENGTH_AXIS.get(transform, "strength"), ylabel=_axis(metric),
+               title=f"{metric}: {transform} ({_views(cells)} views per cell)")
         _bound(ax, metric)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, ncol=2)
         files.append(_save(fig, out_dir / f"{metric}_vs_{transform}.png"))
     return files
 
@@ -81,15 +107,13 @@ def plot_reference_counts(summaries: list[dict], out_dir: Path) -> list[Path]:
     """Survey Table 7 as curves: the headline metric (pose success) against the number of reference features."""
     files = []
     for metric, cells in sorted(_by_headline(summaries, "reference_count").items()):
-        fig, ax = plt.subplots(figsize=(7, 4.5))
-        for s in cells:
-            xs, ys = _steps(s["by_reference_count"], metric)
-            ax.plot(xs, ys, marker="o", label=_series_name(s["methods"]))
+        fig, ax = plt.subplots(figsize=(9, 4.5))
+        _plot_lines(ax, cells, "reference_count", metric, log_x=True)
         ax.set_xscale("log")
-        ax.set(xlabel="reference features", ylabel=_axis(metric), title=f"{metric} against reference features")
+        ax.set(xlabel="reference features", ylabel=_axis(metric),
+               title=f"{metric} against reference features ({_views(cells)} pairs per cell)")
         _bound(ax, metric)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7, ncol=2)
         files.append(_save(fig, out_dir / f"{_stem(metric)}_vs_reference_features.png"))
     return files
 
@@ -119,9 +143,18 @@ def plot_success_heatmaps(summaries: list[dict], out_dir: Path) -> list[Path]:
             ax.text(j, i, "NA" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=7,
                     color="white" if np.isnan(v) or v < 0.6 else "black")
         fig.colorbar(image, ax=ax, label=_axis(metric))
-        ax.set_title(f"{metric}, {transform} pairs")
+        ax.set_title(f"{metric}, {transform} pairs ({_views(cells)} per cell)")
         files.append(_save(fig, out_dir / f"{_stem(metric)}_heatmap_{transform}.png"))
     return files
+
+
+def _views(cells: list[dict]) -> str:
+    """Views (or pairs) per cell of a plot: ``27``, or ``12–27`` when the cells differ."""
+    counts = [c.get("n_views", c.get("n_rows")) for c in cells if c["status"] == "ok"]
+    counts = [int(n) for n in counts if n is not None]
+    if not counts:
+        return "no"
+    return str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}–{max(counts)}"
 
 
 def write_plots(summaries: list[dict], out_dir: str | Path) -> list[Path]:

@@ -75,8 +75,24 @@ def load_summaries(source: str | Path) -> list[dict]:
 
 
 def frame(summaries: list[dict]) -> pd.DataFrame:
-    """:func:`~gtsweep.orchestration.results.summary_table` plus each cell's success per reference count (Table 7)."""
-    return summary_table(summaries).assign(by_reference_count=[s.get("by_reference_count") for s in summaries])
+    """:func:`~gtsweep.orchestration.results.summary_table` plus each cell's success per reference count (Table 7)
+    and its number of views (pairs for real pairs; summaries from before it was recorded: their rows)."""
+    return summary_table(summaries).assign(by_reference_count=[s.get("by_reference_count") for s in summaries],
+                                           n_views=[s.get("n_views", s.get("n_rows")) for s in summaries])
+
+
+def sample_note(part: pd.DataFrame) -> str:
+    """What a table was computed on: views (or pairs) per evaluated cell and the transforms, e.g.
+    ``27 pairs per cell; transforms: incremental``."""
+    ok = part[part["status"] == "ok"] if "status" in part else part
+    counts = pd.to_numeric(ok["n_views"], errors="coerce").dropna().astype(int) if "n_views" in ok else pd.Series()
+    transforms = sorted(str(t) for t in part["transform"].dropna().unique())
+    kind = "pairs" if transforms and set(transforms) <= {"incremental", "absolute"} else "views"
+    used = f"transforms: {', '.join(transforms) or 'none'}"
+    if counts.empty:  # nothing evaluated, or summaries from before views were counted
+        return used
+    size = f"{counts.min()}" if counts.min() == counts.max() else f"{counts.min()}–{counts.max()}"
+    return f"{size} {kind} per cell; {used}"
 
 
 def _ok(df: pd.DataFrame, metric: str) -> pd.Series:
@@ -98,7 +114,7 @@ def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str,
         p = _lookup(theirs, paper_label(row.detector), paper_label(row.descriptor))
         grid.loc[shown_label(row.detector), shown_label(row.descriptor)] = fmt(row.value, p)
     grid.index.name = "detector"
-    return Table(name, title, grid.fillna(""))
+    return Table(name, f"{title} ({sample_note(part)})", grid.fillna(""))
 
 
 def _order(names, paper_order) -> list[str]:
@@ -138,7 +154,8 @@ def table_selectors(df: pd.DataFrame) -> Table | None:
             value = detection.loc[(d, selector), "repeatability"] if (d, selector) in detection.index else math.nan
             out.loc[shown_label(d), f"Rep. {selector}"] = fmt(value, p.get(column))
     out.index.name = "detector"
-    return Table("table2_selectors", "Survey Table 2: repeatability of selector-detector pairings", out)
+    return Table("table2_selectors", f"Survey Table 2: repeatability of selector-detector pairings "
+                                     f"({sample_note(df[df['descriptor'].isna()])})", out)
 
 
 def table_detectors(df: pd.DataFrame) -> Table | None:
@@ -158,8 +175,8 @@ def table_detectors(df: pd.DataFrame) -> Table | None:
                     "ambiguity": fmt(row.ambiguity, said.get("ambiguity")),
                     "time (s)": fmt(row.t_detect, None, 3)})
     table = pd.DataFrame(out).set_index("detector")
-    used = ", ".join(sorted(df.loc[df["descriptor"].isna() & (df["status"] == "ok"), "transform"].unique()))
-    return Table("table3_detectors", f"Survey Table 3: detectors, best selector (transforms: {used})", table)
+    used = df[df["descriptor"].isna() & (df["status"] == "ok") & (df["selector"] != "none")]
+    return Table("table3_detectors", f"Survey Table 3: detectors, best selector ({sample_note(used)})", table)
 
 
 def table_pairings(df: pd.DataFrame) -> Table | None:
@@ -178,7 +195,7 @@ def table_pairings(df: pd.DataFrame) -> Table | None:
                     "pose success": fmt(row.pose_success, p.get("pose_success")),
                     "#correct matches": fmt(row.n_correct, p.get("correct_matches"), 0),
                     "precision": fmt(row.precision, p.get("precision"))})
-    return Table("table6_pairings", "Survey Table 6: pairings on synthetic transforms",
+    return Table("table6_pairings", f"Survey Table 6: pairings on synthetic transforms ({sample_note(part)})",
                  pd.DataFrame(out).set_index("detector"))
 
 
@@ -198,8 +215,8 @@ def table_reference_counts(df: pd.DataFrame) -> Table | None:
             column = str(int(float(count)))
             record[column] = fmt(values.get("pose_success"), p.get(column))
         out.append(record)
-    return Table("table7_reference_features", "Survey Table 7: success against number of reference features",
-                 pd.DataFrame(out).set_index("detector"))
+    return Table("table7_reference_features", "Survey Table 7: success against number of reference features "
+                 f"({sample_note(part)})", pd.DataFrame(out).set_index("detector"))
 
 
 def table_cells(summaries: list[dict]) -> Table | None:
@@ -216,7 +233,8 @@ def table_cells(summaries: list[dict]) -> Table | None:
     cells = pd.DataFrame.from_records(records)
     metrics = schema.ordered(c for c in cells.columns if c in schema.METRICS)
     cells = cells[[c for c in cells.columns if c not in metrics] + metrics].fillna("").set_index("detector")
-    return Table("cells", "Every cell: the reported metrics of its experiment, aggregated over its views", cells)
+    return Table("cells", "Every cell: the reported metrics of its experiment, aggregated over its views "
+                 f"({sample_note(frame(summaries))})", cells)
 
 
 def build_tables(summaries: list[dict]) -> list[Table]:

@@ -15,8 +15,14 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from gtsweep.core.errors import GtsweepError
-from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
+from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.registry import (
+    Method,
+    Registry,
+    lazy_factory,
+    reason_line,
+    spec_declare,
+)
 from gtsweep.stages import keypoints as kp
 
 _x = cv2.xfeatures2d
@@ -32,6 +38,10 @@ class DescriptorSpec(Method):
     only_detectors: tuple[str, ...] | None = None  # None: any detector
     excluded_detectors: dict[str, str] = field(default_factory=dict)  # detector -> reason
     learned: bool = False
+
+    def __post_init__(self):
+        if self.norm not in (HAMMING, L2):
+            raise BadInput(f"descriptor '{self.name}': norm must be {HAMMING} (binary) or {L2}, got {self.norm!r}")
 
 
 _descriptor = functools.partial(DescriptorSpec, "descriptor")
@@ -69,7 +79,7 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     _descriptor("kaze", "KAZE", _x.KAZE_create, _NONLINEAR, norm=L2, only_detectors=("kaze",)),
     _descriptor("xfeat", "XFeat", lazy_factory("gtsweep.stages.xfeat", "XFeat_create"), {}, norm=L2,
                 learned=True),
-])
+], spec=DescriptorSpec, make=spec_declare(DescriptorSpec, "descriptor"))
 
 #: The registry's lookup under its former name (callers outside the science layers still use it).
 

@@ -5,7 +5,8 @@ as the survey does for MSER, section 5.1), whether it honours a detection mask, 
 it for a number of keypoints (the survey set that number to 1000 where a detector has one). Its ``defaults`` are
 the parameters the survey's reproduction uses, in OpenCV's argument names.
 Adding a detector is one :class:`DetectorSpec` entry in :data:`DETECTORS` and one tiny YAML file in
-``conf/detector/`` (its search space, and ``params: {}`` or the values a user wants to differ).
+``conf/detector/`` (its search space, and ``params: {}`` or the values a user wants to differ); or a YAML file
+alone that declares it (``factory: cv2.ORB_create``, ``orientation: true``, ``params: {...}``: Registry.declare).
 """
 from __future__ import annotations
 
@@ -18,7 +19,13 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput, GtsweepError
-from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
+from gtsweep.core.registry import (
+    Method,
+    Registry,
+    lazy_factory,
+    reason_line,
+    spec_declare,
+)
 from gtsweep.stages import keypoints as kp
 
 _x = cv2.xfeatures2d
@@ -91,7 +98,7 @@ DETECTORS: Registry[DetectorSpec] = Registry("detector", [
     _detector("xfeat", "XFeat", lazy_factory("gtsweep.stages.xfeat", "XFeat_create"),
               {"top_k": 1000, "detection_threshold": 0.05, "keypoint_size": 8.0},
               orientation=False, learned=True, count_param="top_k"),
-])
+], spec=DetectorSpec, make=spec_declare(DetectorSpec, "detector"))
 
 #: The registry's lookup under its former name (callers outside the science layers still use it).
 

@@ -166,9 +166,11 @@ def select_bucketing(keypoints, image_shape, rows: int = 8, cols: int = 6, per_c
     return kps[keep]
 
 
-def _selector(name: str, label: str, function) -> Method:
-    """A selector function as a registry entry; its pre-flight selects from no keypoints (checks the values)."""
-    return Method("selector", name, label, partial_factory(function), function_defaults(function, 2),
+def _selector(name: str, label: str, function, params=None, capabilities=None) -> Method:
+    """A selector ``function(keypoints, image_shape, **params)`` as a registry entry (``params`` over its own
+    defaults); its pre-flight selects from no keypoints (checks the values)."""
+    return Method("selector", name, label, partial_factory(function), {**function_defaults(function, 2),
+                                                                        **(params or {})},
                   probe=lambda selector: selector(empty(), (1, 1)))
 
 
@@ -177,7 +179,7 @@ SELECTORS: Registry[Method] = Registry("selector", [
     _selector("nms", "NMS", select_nms),
     _selector("anms", "ANMS", select_anms),
     _selector("bucketing", "Bucketing", select_bucketing),
-])
+], make=_selector)
 
 
 def select(keypoints, name: str, image_shape, **params) -> np.ndarray:

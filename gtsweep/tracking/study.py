@@ -13,6 +13,7 @@ import time
 from typing import Mapping
 
 from gtsweep.tracking.store import experiment_id, flatten, git_commit, tracking_uri
+from gtsweep.tracking.tags import model_development, source_tags
 
 STUDY_TAG, STORAGE_TAG, ROLE_TAG, TRIAL_TAG = "gtsweep.study", "gtsweep.storage", "gtsweep.role", "gtsweep.trial"
 
@@ -41,6 +42,8 @@ class StudyTracker:
         self.client = MlflowClient(self.uri)
         self.settings = settings
         self.experiment_id = experiment_id(self.client, (mlflow_cfg or {}).get("experiment") or "gtsweep")
+        model_development(self.client, self.experiment_id)
+        self.source = source_tags()
         storage = safe_storage(settings["storage"])
         query = (f"tags.`{STUDY_TAG}` = '{study.study_name}' and tags.`{STORAGE_TAG}` = '{storage}' "
                  f"and tags.`{ROLE_TAG}` = 'study'")
@@ -65,7 +68,7 @@ class StudyTracker:
                 "gtsweep.experiment": "optimize", "gtsweep.objective": self.settings["objective"],
                 "gtsweep.detector": target.detector, "gtsweep.tuned_group": target.group,
                 "gtsweep.dataset_fingerprint": fingerprint, "gtsweep.git_commit": git_commit(),
-                "gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]])}
+                "gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), **self.source}
         if target.descriptor:
             tags["gtsweep.descriptor"] = target.descriptor
         run = self.client.create_run(self.experiment_id, run_name=f"optimize/{study.study_name}", tags=tags)
@@ -83,7 +86,8 @@ class StudyTracker:
         if trial.number in self.logged:
             return
         state = trial.state.name
-        tags = {"mlflow.parentRunId": self.parent_id, TRIAL_TAG: str(trial.number), "gtsweep.state": state}
+        tags = {"mlflow.parentRunId": self.parent_id, TRIAL_TAG: str(trial.number), "gtsweep.state": state,
+                **self.source}
         if trial.user_attrs.get("error"):
             tags["gtsweep.reason"] = str(trial.user_attrs["error"])[:5000]
         elif state == "FAIL":

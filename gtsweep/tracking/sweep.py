@@ -4,11 +4,14 @@ Several processes writing one sqlite store at once corrupt it, so workers return
 logs, with ``MlflowClient.log_batch`` (about 4x faster than one call per metric). The default store is
 ``sqlite:///<cwd>/mlflow.db`` (MLflow 3's default); ``mlflow.tracking_uri`` or ``MLFLOW_TRACKING_URI`` selects a
 server. A resumed sweep reuses its parent run and logs only cells that have no child run yet.
+
+As the UI expects (:mod:`gtsweep.tracking.tags`): the experiment is marked as model development, every run carries
+MLflow's source, user and git-commit tags, a child run is named shortly (``sift·brief·inc``), starts and ends
+when its cell's tasks ran, and holds the cell's per-view CSV; the jobs of a multirun nest under one run.
 """
 from __future__ import annotations
 
 import json
-import logging
 import math
 import sys
 import time
@@ -17,6 +20,13 @@ from typing import Mapping
 
 from gtsweep.core.errors import BadInput
 from gtsweep.tracking.store import experiment_id, flatten, git_commit, tracking_uri
+from gtsweep.tracking.tags import (
+    cell_names,
+    model_development,
+    ms,
+    quiet_mlflow,
+    source_tags,
+)
 
 PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
@@ -31,17 +41,17 @@ def step_scale(values) -> int:
 class SweepTracker:
     """Logs a sweep to MLflow. Use :meth:`start`, then :meth:`log_cell` per cell (a sweep hook), then :meth:`end`."""
 
-    def __init__(self, cfg: Mapping | None, output_dir: str | Path, config_yaml: str, run_name: str):
+    def __init__(self, cfg: Mapping | None, output_dir: str | Path, config_yaml: str, run_name: str,
+                 nest_under: str | None = None):
         import mlflow
         from mlflow.tracking import MlflowClient
 
-        for name in ("mlflow", "alembic"):  # their INFO lines (store creation, migrations) are noise here
-            logging.getLogger(name).setLevel(logging.WARNING)
+        quiet_mlflow()
         self.uri = tracking_uri(cfg)
         self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
         self.output_dir = Path(output_dir)
         self.config_yaml = config_yaml
-        self.run_name = run_name
+        self.run_name, self.nest_under = run_name, nest_under  # nest_under: a multirun's run
         mlflow.set_tracking_uri(self.uri)
         self.client = MlflowClient(self.uri)
         self.parent_id: str | None = None
@@ -50,6 +60,9 @@ class SweepTracker:
     def start(self, grid, dataset_fingerprint: str, versions: Mapping) -> None:
         """Create (or, on resume, reopen) the parent run."""
         self.experiment_id = experiment_id(self.client, self.experiment_name)
+        model_development(self.client, self.experiment_id)
+        self.names = cell_names(grid.cells, several_selectors=len(grid.selectors) > 1)
+        self.source = source_tags()
         self.output_dir.mkdir(parents=True, exist_ok=True)
         record = self.output_dir / PARENT_RECORD
         if record.exists():
@@ -59,8 +72,10 @@ class SweepTracker:
         else:
             tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.git_commit": git_commit(),
                     "gtsweep.dataset_fingerprint": dataset_fingerprint, "gtsweep.output_dir": str(self.output_dir),
-                    "gtsweep.experiment": grid.experiment["name"],
+                    "gtsweep.experiment": grid.experiment["name"], **self.source,
                     **{f"gtsweep.version.{k}": str(v) for k, v in versions.items()}}
+            if self.nest_under:
+                tags["mlflow.parentRunId"] = self.nest_under
             run = self.client.create_run(self.experiment_id, run_name=self.run_name, tags=tags)
             self.parent_id = run.info.run_id
             self.client.log_text(self.parent_id, self.config_yaml, "config.yaml")
@@ -74,7 +89,8 @@ class SweepTracker:
         return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs}
 
     def log_cell(self, cell, summary: Mapping, rows=None) -> None:
-        """One child run: the cell's full method configuration, its schema metrics, steps per strength, NA reason."""
+        """One child run: the cell's full method configuration, its schema metrics, steps per strength, NA reason,
+        its per-view CSV; it starts and ends when the cell's tasks ran."""
         from mlflow.entities import Metric, Param, RunTag
 
         from gtsweep.evaluation import schema
@@ -87,11 +103,12 @@ class SweepTracker:
                              "descriptor": config["descriptor"], "transform": config["transform"],
                              "experiment": config["experiment"]})}
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
-                STATUS_TAG: summary["status"]}
+                STATUS_TAG: summary["status"], **self.source}
         if summary.get("reason"):
             tags[REASON_TAG] = str(summary["reason"])[:5000]
-        run = self.client.create_run(self.experiment_id, run_name=cell.key, tags=tags)
-        now = int(time.time() * 1000)
+        run = self.client.create_run(self.experiment_id, run_name=self.names.get(cell.key, cell.key), tags=tags,
+                                     start_time=ms(summary.get("started")))
+        now = ms(summary.get("ended")) or int(time.time() * 1000)
         # undefined values (e.g. ambiguity when no keypoint repeats) are logged as NaN: every metric is present
         values = summary.get("metrics") or {}
         metrics = [Metric(name, _number(values[name]), now, 0) for name in schema.ordered(values)]
@@ -104,12 +121,18 @@ class SweepTracker:
         for start in range(0, max(len(metrics), 1), MAX_BATCH):  # MLflow takes at most 1000 metrics per call
             self.client.log_batch(run.info.run_id, metrics=metrics[start:start + MAX_BATCH],
                                   params=params if start == 0 else [], tags=tags if start == 0 else [])
-        self.client.set_terminated(run.info.run_id, "FINISHED" if summary["status"] != "error" else "FAILED")
+        per_view = self.output_dir / "cells" / f"{cell.key}.csv"
+        if per_view.exists():
+            self.client.log_artifact(run.info.run_id, str(per_view))
+        self.client.set_terminated(run.info.run_id, "FINISHED" if summary["status"] != "error" else "FAILED",
+                                   end_time=ms(summary.get("ended")))
         self.logged.add((cell.key, summary.get("hash")))
 
     @staticmethod
     def _step_metrics(summary: Mapping, now: int) -> list:
-        """``<metric>_vs_<step key>`` series of the schema's step keys; steps are the value x :func:`step_scale`."""
+        """``<metric>_vs_<step key>`` series of the schema's step keys; steps are the value x :func:`step_scale`.
+        Logged only as a series of several steps: a single point would read as the cell's value in the UI,
+        where the cell's aggregate over every view is the metric without suffix."""
         from mlflow.entities import Metric
 
         from gtsweep.evaluation import schema
@@ -117,7 +140,9 @@ class SweepTracker:
         metrics = []
         for step_key in schema.STEP_KEYS:
             by_step = summary.get(f"by_{step_key}") or {}
-            scale = step_scale([float(v) for v in by_step]) if by_step else 1
+            if len(by_step) < 2:
+                continue
+            scale = step_scale([float(v) for v in by_step])
             for value, values in by_step.items():
                 step = int(round(float(value) * scale))
                 metrics += [Metric(schema.series_name(name, step_key), float(values[name]), now, step)
@@ -139,10 +164,20 @@ class SweepTracker:
                   "cache_misses": outcome.stats.cache_misses, "wall_time_s": outcome.seconds,
                   "resumed_cells": outcome.resumed}
         self.client.log_batch(self.parent_id, metrics=[Metric(k, float(v), now, 0) for k, v in totals.items()])
-        for path in [outcome.table, *artifacts]:
-            if path is not None and Path(path).exists():
-                self.client.log_artifact(self.parent_id, str(path))
+        if outcome.table is not None and Path(outcome.table).exists():
+            self.client.log_artifact(self.parent_id, str(outcome.table))
+        for path in artifacts:  # the report: survey tables and plots
+            if Path(path).exists():
+                self.client.log_artifact(self.parent_id, str(path), "report")
         self.client.set_terminated(self.parent_id, "FAILED" if outcome.failed else "FINISHED")
+
+    def ui_hint(self) -> str:
+        """How to look at the runs: the ``mlflow ui`` command for the store actually used, or its address."""
+        page = f"#/experiments/{self.experiment_id}/runs?workflowType=machine_learning"  # the training-runs view
+        if self.uri.startswith(("http://", "https://")):
+            return f"MLflow: parent run {self.parent_id}, open {self.uri.rstrip('/')}/{page}"
+        return (f"MLflow: parent run {self.parent_id}; to browse: mlflow ui --backend-store-uri {self.uri} "
+                f"--host 127.0.0.1 --port 5000, then open http://127.0.0.1:5000/{page}")
 
 
 def _finite(value) -> bool:
@@ -186,3 +221,29 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
                 steps.setdefault(repr(m.step / scale), {})[metric] = m.value
         summaries.append(summary)
     return sorted(summaries, key=lambda s: s["key"] or "")
+
+
+def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
+    """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
+    from mlflow.tracking import MlflowClient
+
+    quiet_mlflow()
+    client = MlflowClient(tracking_uri(cfg))
+    if previous is not None:
+        client.update_run(previous, status="RUNNING")
+        return previous
+    experiment = experiment_id(client, (cfg or {}).get("experiment") or "gtsweep")
+    model_development(client, experiment)
+    tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.role": "multirun",
+            "gtsweep.output_dir": str(sweep_dir), **source_tags()}
+    return client.create_run(experiment, run_name=name, tags=tags).info.run_id
+
+
+def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = ()) -> None:
+    """Attach the combined table and report to the multirun's run and close it."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri(cfg))
+    for path in artifacts:
+        client.log_artifact(run_id, str(path), "combined")
+    client.set_terminated(run_id, "FINISHED")

@@ -1,0 +1,60 @@
+"""The Hydra callback of ``-m`` (``hydra.callbacks.multirun`` in conf/config.yaml): one MLflow run that holds the
+jobs' runs, and at the end one combined table and report across the jobs (:mod:`gtsweep.report.combine`)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from hydra.experimental.callback import Callback
+
+MULTIRUN_RECORD = "multirun.json"
+
+
+def multirun_record(sweep_dir: Path) -> dict:
+    """What the callback recorded for the jobs: the swept keys and the MLflow run they nest under."""
+    path = Path(sweep_dir) / MULTIRUN_RECORD
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def swept_keys(overrides) -> list[str]:
+    """The keys a multirun sweeps over (``seed=0,1``; ``detector=glob(a*)``)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    return [o.key_or_group for o in OverridesParser.create().parse_overrides(list(overrides)) if o.is_sweep_override()]
+
+
+class MultirunReport(Callback):
+    """Opens the multirun's MLflow run before the jobs, combines their results after them."""
+
+    def on_multirun_start(self, config, **kwargs) -> None:
+        from gtsweep.tracking.tags import overrides_name
+
+        sweep_dir = Path(config.hydra.sweep.dir)
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        overrides = list(config.hydra.overrides.task)
+        record = {**multirun_record(sweep_dir), "swept": swept_keys(overrides)}
+        if config.mlflow.enabled:
+            from gtsweep.tracking.sweep import open_multirun
+
+            swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record["swept"]]
+            record["parent_run_id"] = open_multirun(config.mlflow, "multirun " + overrides_name(swept, ""),
+                                                    sweep_dir, record.get("parent_run_id"))
+        (sweep_dir / MULTIRUN_RECORD).write_text(json.dumps(record))
+
+    def on_multirun_end(self, config, **kwargs) -> None:
+        from gtsweep.core.errors import GtsweepError
+        from gtsweep.report.combine import combine
+
+        sweep_dir = Path(config.hydra.sweep.dir)
+        try:
+            files = combine(sweep_dir, plots=config.report.plots)
+        except GtsweepError as e:
+            print(f"gtsweep: multirun: nothing combined ({e})")
+            return
+        record = multirun_record(sweep_dir)
+        if record.get("parent_run_id"):
+            from gtsweep.tracking.sweep import close_multirun
+
+            close_multirun(config.mlflow, record["parent_run_id"],
+                           [f for f in files if f.parent == sweep_dir / "combined"])
+        print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")

@@ -1,0 +1,155 @@
+"""What gtsweep's Hydra application sees: the command line as Hydra parses it, the config search path, the options
+of a config group and the raw config files, first match wins.
+
+The primary config (``pkg://gtsweep.cli.primary``, ``gtsweep.yaml``) sits alone in Hydra's main directory and
+declares ``hydra.searchpath``: ``./tuned`` (configs written by ``experiment=optimize``) then ``pkg://gtsweep.conf``
+(the package's groups and presets). Hydra searches the main directory, then ``--config-dir``, then the search
+path; a ``hydra.searchpath=[...]`` on the command line replaces the primary's list, so gtsweep appends its own
+entries to it (:func:`with_searchpath`). A user's configs therefore win over the package's.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import yaml
+
+from gtsweep.core.configs import Configs
+from gtsweep.core.errors import BadInput
+
+PRIMARY_MODULE = "gtsweep.cli.primary"
+PRIMARY = f"pkg://{PRIMARY_MODULE}"
+PRIMARY_NAME = "gtsweep"
+#: The config groups that hold a list of methods and span the grid.
+GRID_GROUPS = ("detector", "selector", "descriptor", "transform")
+
+
+@dataclass(frozen=True)
+class Invocation:
+    """A command line as Hydra's own parser reads it: the overrides (one run of ``argv``, from ``start``) and
+    Hydra's flags, wherever they stand."""
+
+    argv: tuple[str, ...]
+    overrides: tuple[str, ...]
+    start: int
+    config_dir: str | None
+    multirun: bool
+    passthrough: bool  # shell completion (``-sc install=bash``), or a command line Hydra will refuse: left as is
+
+    def with_overrides(self, overrides: list[str]) -> list[str]:
+        """``argv`` with its overrides replaced by ``overrides`` (in their place: Hydra takes them as one run)."""
+        end = self.start + len(self.overrides)
+        return [*self.argv[:self.start], *overrides, *self.argv[end:]]
+
+
+def _raise(message: str):
+    raise BadInput(message)
+
+
+@lru_cache(maxsize=64)
+def _parse(argv: tuple[str, ...]) -> Invocation:
+    from hydra._internal.utils import get_args_parser
+
+    parser = get_args_parser()
+    parser.error = _raise  # a command line Hydra refuses is Hydra's to report
+    try:
+        args = parser.parse_args(list(argv))
+    except (BadInput, argparse.ArgumentError):
+        return Invocation(argv, (), 0, None, "-m" in argv or "--multirun" in argv, True)
+    overrides = tuple(args.overrides)
+    start = next((i for i in range(len(argv)) if argv[i:i + len(overrides)] == overrides), 0)
+    return Invocation(argv, overrides, start if overrides else 0, args.config_dir, bool(args.multirun),
+                      bool(args.shell_completion))
+
+
+def parse(argv) -> Invocation:
+    """The command line ``argv`` (a command line Hydra would refuse comes back untouched, for Hydra to report)."""
+    return _parse(tuple(argv))
+
+
+@lru_cache(maxsize=1)
+def primary_searchpath() -> tuple[str, ...]:
+    """``hydra.searchpath`` of the primary config: gtsweep's entries, in the order Hydra searches them."""
+    text = resources.files(PRIMARY_MODULE).joinpath(f"{PRIMARY_NAME}.yaml").read_text()
+    return tuple(yaml.safe_load(text)["hydra"]["searchpath"])
+
+
+def user_searchpath(overrides) -> list[str] | None:
+    """The entries of a ``hydra.searchpath=[...]`` override, or None."""
+    for override in overrides:
+        key, _, value = override.lstrip("+").partition("=")
+        if key == "hydra.searchpath":
+            entries = yaml.safe_load(value)
+            return [str(e) for e in (entries if isinstance(entries, list) else [entries])]
+    return None
+
+
+def with_searchpath(overrides: list[str]) -> list[str]:
+    """A user's ``hydra.searchpath=[...]`` with gtsweep's entries appended (it would replace them otherwise)."""
+    user = user_searchpath(overrides)
+    if user is None:
+        return overrides
+    entries = [*user, *(e for e in primary_searchpath() if e not in user)]
+    return [f"hydra.searchpath=[{','.join(entries)}]" if o.lstrip("+").startswith("hydra.searchpath=") else o
+            for o in overrides]
+
+
+def search_path(argv) -> tuple[str, ...]:
+    """Hydra's search path for ``argv``: main directory, ``--config-dir``, the user's then gtsweep's entries."""
+    invocation = parse(argv)
+    user = user_searchpath(invocation.overrides) or []
+    config_dir = [f"file://{os.path.abspath(invocation.config_dir)}"] if invocation.config_dir else []
+    return (PRIMARY, *config_dir, *user, *(e for e in primary_searchpath() if e not in user))
+
+
+@lru_cache(maxsize=16)
+def _configs(entries: tuple[str, ...], cwd: str) -> Configs:
+    return Configs(entries)
+
+
+def configs(argv=()) -> Configs:
+    """The configs ``python -m gtsweep ARGV`` composes from (``./tuned`` is relative to the working directory)."""
+    return _configs(search_path(argv), os.getcwd())
+
+
+
+
+def loaded_files(found: Configs, overrides) -> list[tuple[str, str]]:
+    """``(package, config path)`` of every config file that composing the primary with ``overrides`` loads (Hydra's
+    defaults list; ``runtime.choices`` leaves out the groups that take a list)."""
+    from hydra._internal.config_repository import CachingConfigRepository
+    from hydra._internal.defaults_list import create_defaults_list
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    defaults = create_defaults_list(CachingConfigRepository(found.repository), PRIMARY_NAME, parsed,
+                                    prepend_hydra=False, skip_missing=True)
+    return [(d.package, d.config_path) for d in defaults.defaults if d.config_path and not d.is_self]
+
+
+def keyed_methods(cfg, found: Configs, overrides) -> None:
+    """Key the methods declared in YAML by their option names, in place.
+
+    The package's method configs are keyed by name (``sift: {params: ...}``), so that the options of a multi-select
+    group sit side by side; a user's file that declares a new method (``factory: ...``, ``params: ...``) is not,
+    and Hydra merges it into the group itself. Its keys are moved to ``<group>.<name>`` (command-line overrides
+    there win), read from the file itself, so that two such files never mix.
+    """
+    from omegaconf import OmegaConf, open_dict
+
+    for package, path in loaded_files(found, overrides):
+        group, _, option = path.partition("/")
+        if package != group or group not in GRID_GROUPS or group not in cfg:
+            continue
+        name = option.split("/")[-1]
+        raw = OmegaConf.to_container(found.source(path).config) or {}
+        raw.pop("defaults", None)
+        if not raw or set(raw) == {name}:
+            continue
+        with open_dict(cfg[group]):
+            for key in raw:
+                cfg[group].pop(key, None)
+            cfg[group][name] = OmegaConf.merge(raw, cfg[group].get(name) or {})

@@ -1,0 +1,1 @@
+"""The primary config of ``python -m gtsweep.datasets`` (``dataset_stats.yaml``)."""

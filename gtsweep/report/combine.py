@@ -1,0 +1,147 @@
+"""One table and one report across the jobs of a multirun (``python -m gtsweep -m seed=0,1 ...``).
+
+Jobs that differ only in ``seed`` are repeats of one setting: each cell gets the mean of its metrics over the
+repeats, their spread (sample standard deviation) and the number of repeats. Jobs that differ in anything else are
+separate settings (named by the overrides that differ, e.g. ``selector.nms.params.n=500``), side by side.
+Written into ``<sweep dir>/combined/``::
+
+    all_results.csv  every cell of every job: setting, seed, job, methods, status, metrics (not results.csv:
+                     a glob of the jobs' */results.csv must not find it)
+    summary.csv      per setting and cell: <metric>_mean, <metric>_std, n (repeats that evaluated it)
+    summary.md       the headline metric per setting and cell as mean ± std (n)
+    report/          the survey's tables and plots of the means (report/<setting>/ when there are several)
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import pandas as pd
+
+from gtsweep.core.errors import GtsweepError
+from gtsweep.evaluation import schema
+from gtsweep.orchestration.results import summary_table
+from gtsweep.report.tables import load_summaries, write_report
+
+SEED = re.compile(r"^\+*seed=(.*)$")
+METHODS = ["detector", "selector", "descriptor", "transform"]
+
+
+def jobs_of(sweep_dir: Path) -> list[dict]:
+    """The jobs of a multirun that wrote results: directory, seed and setting (the overrides other than the seed
+    that differ between the jobs; "all" when only the seed does)."""
+    jobs = []
+    for record in sorted(Path(sweep_dir).glob("*/sweep.json"), key=lambda p: _job_order(p.parent.name)):
+        overrides = json.loads(record.read_text()).get("overrides") or []
+        if list(record.parent.glob("cells/*.json")):
+            jobs.append({"dir": record.parent, "job": record.parent.name, "overrides": overrides})
+    shared = set.intersection(*(set(job["overrides"]) for job in jobs)) if jobs else set()
+    for job in jobs:
+        seeds = [SEED.match(o).group(1) for o in job["overrides"] if SEED.match(o)]
+        job["seed"] = int(seeds[0]) if seeds else 0
+        job["setting"] = " ".join(o for o in job["overrides"] if o not in shared and not SEED.match(o)) or "all"
+    return jobs
+
+
+def _job_order(name: str):
+    return (0, int(name)) if name.isdigit() else (1, name)
+
+
+def mean_summary(summaries: list[dict]) -> dict:
+    """One cell's summaries over repeats: metrics (and per-step values) averaged over the repeats that evaluated
+    it; ``ok`` when any did, else the first repeat's status and reason."""
+    ok = [s for s in summaries if s["status"] == "ok"]
+    if not ok:
+        return dict(summaries[0])
+    merged = {k: v for k, v in ok[0].items() if not k.startswith("by_") and k != "metrics"}
+    merged["metrics"] = _mean_dicts([s.get("metrics") or {} for s in ok])
+    for key in {k for s in ok for k in s if k.startswith("by_")}:
+        steps = {step for s in ok for step in s.get(key) or {}}
+        merged[key] = {step: _mean_dicts([(s.get(key) or {}).get(step) or {} for s in ok]) for step in steps}
+    merged["n_repeats"] = len(ok)
+    return merged
+
+
+def _mean_dicts(dicts: list[dict]) -> dict:
+    names = schema.ordered({k for d in dicts for k in d})
+    means = {}
+    for name in names:
+        values = [float(d[name]) for d in dicts if isinstance(d.get(name), (int, float))
+                  and math.isfinite(float(d[name]))]
+        means[name] = sum(values) / len(values) if values else None
+    return means
+
+
+def combine(sweep_dir: str | Path, plots: bool = True) -> list[Path]:
+    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written."""
+    sweep_dir = Path(sweep_dir)
+    jobs = jobs_of(sweep_dir)
+    if not jobs:
+        raise GtsweepError(f"no job of the multirun in '{sweep_dir}' wrote results")
+    out = sweep_dir / "combined"
+    out.mkdir(parents=True, exist_ok=True)
+    by_job = {job["job"]: load_summaries(job["dir"]) for job in jobs}
+    rows = pd.concat([summary_table(by_job[job["job"]]).assign(setting=job["setting"], seed=job["seed"],
+                                                                job=job["job"]) for job in jobs], ignore_index=True)
+    rows = rows[["setting", "seed", "job", *[c for c in rows.columns if c not in ("setting", "seed", "job")]]]
+    files = [_write(out / "all_results.csv", rows.to_csv(index=False))]
+    summary = repeat_table(rows)
+    files.append(_write(out / "summary.csv", summary.to_csv(index=False)))
+    headlines = {schema.headline(schema.experiment_of(s)) for summaries in by_job.values() for s in summaries}
+    files.append(_write(out / "summary.md", headline_markdown(summary, jobs, headlines)))
+    settings = sorted({job["setting"] for job in jobs})
+    for setting in settings:
+        cells: dict[str, list[dict]] = {}
+        for job in (j for j in jobs if j["setting"] == setting):
+            for s in by_job[job["job"]]:
+                cells.setdefault(s["key"], []).append(s)
+        target = out / "report" / (_slug(setting) if len(settings) > 1 else "")
+        files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots)[1]
+    return files
+
+
+def repeat_table(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per setting and cell: mean and sample standard deviation of every metric over the repeats, and n."""
+    metrics = schema.ordered(c for c in rows.columns if c in schema.METRICS)
+    keys = ["setting", *[c for c in METHODS if c in rows]]
+    ok = rows[rows["status"] == "ok"].copy()
+    for metric in metrics:
+        ok[metric] = pd.to_numeric(ok[metric], errors="coerce")
+    grouped = ok.groupby(keys, dropna=False, sort=False)
+    table = grouped[metrics].agg(["mean", "std"])
+    table.columns = [f"{metric}_{stat}" for metric, stat in table.columns]
+    table.insert(0, "n", grouped.size())
+    table.insert(1, "seeds", grouped["seed"].agg(lambda s: " ".join(str(v) for v in sorted(s))))
+    return table.reset_index()
+
+
+def headline_markdown(summary: pd.DataFrame, jobs: list[dict], headlines) -> str:
+    """The headline metric of each cell as ``mean ± std (n)``, per setting."""
+    seeds = sorted({job["seed"] for job in jobs})
+    lines = [f"**Multirun: {len(jobs)} jobs, seeds {', '.join(map(str, seeds))}; mean ± std over the seeds "
+             f"(n = repeats that evaluated the cell)**", ""]
+    for metric in [m for m in schema.ordered(headlines) if f"{m}_mean" in summary]:
+        part = summary[summary[f"{metric}_mean"].notna()]
+        if part.empty:
+            continue
+        columns = [c for c in ["setting", *METHODS] if c in part]
+        lines += [f"{metric}:", "", "| " + " | ".join([*columns, metric]) + " |", "|" + "---|" * (len(columns) + 1)]
+        for row in part.itertuples(index=False):
+            values = [str(getattr(row, c)) if pd.notna(getattr(row, c)) else "" for c in columns]
+            std = getattr(row, f"{metric}_std")
+            spread = f" ± {std:.3f}" if pd.notna(std) else ""
+            lines.append("| " + " | ".join([*values, f"{getattr(row, f'{metric}_mean'):.3f}{spread} ({row.n})"])
+                         + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=,-]+", "_", text.replace("[", "").replace("]", "")).strip("_")[:80] or "all"
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text if text.endswith("\n") else text + "\n")
+    return path

@@ -1,0 +1,86 @@
+"""What MLflow's UI reads from tags: the experiment's kind (its model-training view rather than the GenAI one),
+each run's source, user and git commit, and short run names that fit the runs table's name column."""
+from __future__ import annotations
+
+import getpass
+from typing import Iterable
+
+KIND_TAG = "mlflow.experimentKind"
+MODEL_DEVELOPMENT = "custom_model_development"
+SOURCE_NAME = "python -m gtsweep"
+#: Short names of the survey's transforms in run names.
+TRANSFORM_SHORT = {"incremental": "inc", "absolute": "abs", "rotation": "rot", "translation": "trans",
+                   "noise": "noise", "gamma": "gamma"}
+SEPARATOR = "·"
+MAX_NAME = 40
+#: Overrides that say how a sweep ran rather than what it evaluated: left out of run names when others remain.
+PLUMBING = ("hydra.", "++hydra", "resume=", "dataset.", "runner.", "mlflow.", "cache.", "report.")
+
+
+def quiet_mlflow() -> None:
+    """MLflow's and alembic's INFO lines (store creation, migrations) are noise in a sweep's output."""
+    import logging
+
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+def model_development(client, experiment_id: str) -> None:
+    """Mark the experiment as model development (the UI's training-runs view), unless it is marked already."""
+    experiment = client.get_experiment(experiment_id)
+    if not (experiment.tags or {}).get(KIND_TAG):
+        client.set_experiment_tag(experiment_id, KIND_TAG, MODEL_DEVELOPMENT)
+
+
+def source_tags() -> dict[str, str]:
+    """MLflow's standard run tags (the fluent API sets them; ``MlflowClient.create_run`` does not)."""
+    from mlflow.utils.mlflow_tags import (
+        MLFLOW_GIT_COMMIT,
+        MLFLOW_SOURCE_NAME,
+        MLFLOW_SOURCE_TYPE,
+        MLFLOW_USER,
+    )
+
+    from gtsweep.tracking.store import git_commit
+
+    tags = {MLFLOW_SOURCE_NAME: SOURCE_NAME, MLFLOW_SOURCE_TYPE: "LOCAL", MLFLOW_USER: _user()}
+    commit = git_commit()
+    if commit != "unknown":
+        tags[MLFLOW_GIT_COMMIT] = commit
+    return tags
+
+
+def _user() -> str:
+    try:
+        return getpass.getuser()
+    except (KeyError, OSError):  # no user name for this uid (e.g. in a container)
+        return "unknown"
+
+
+def cell_names(cells: Iterable, several_selectors: bool) -> dict[str, str]:
+    """A short run name per cell key: ``sift·brief·inc`` (the selector too when the grid has several, or no
+    descriptor); the full key stays in the ``gtsweep.cell`` tag."""
+    names = {}
+    for cell in cells:
+        parts = [cell.detector]
+        if several_selectors or cell.descriptor is None:
+            parts.append(cell.selector)
+        if cell.descriptor is not None:
+            parts.append(cell.descriptor)
+        parts.append(TRANSFORM_SHORT.get(cell.transform, cell.transform))
+        names[cell.key] = SEPARATOR.join(parts)
+    return names
+
+
+def overrides_name(overrides: Iterable[str], fallback: str) -> str:
+    """A run name from a job's overrides (``sweeps=smoke``, ``seed=1 detector=[orb]``), what it evaluates first
+    (settings such as ``dataset.*`` or ``runner.*`` only when nothing else is given), shortened to fit the name
+    column; the whole command stays in the ``gtsweep.command`` tag."""
+    overrides = [o for o in overrides if not o.startswith(PLUMBING[:3])]
+    name = " ".join(o for o in overrides if not o.lstrip("+").startswith(PLUMBING)) or " ".join(overrides) or fallback
+    return name if len(name) <= MAX_NAME else name[:MAX_NAME - 1] + "…"
+
+
+def ms(seconds: float | None) -> int | None:
+    """Seconds since the epoch as MLflow's milliseconds (None stays None: MLflow then uses "now")."""
+    return None if seconds is None else int(round(seconds * 1000))

@@ -1,0 +1,1 @@
+"""Sweep presets, one per survey table: the config group ``sweeps`` (``python -m gtsweep sweeps=smoke``)."""

@@ -1,0 +1,158 @@
+"""Configs found the way Hydra finds them: a user's --config-dir wins over the package's configs, methods can be
+declared in YAML alone, Hydra's flags stand anywhere on the command line, and the package lists its packages."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import tomllib
+from sweep_helpers import cli_env, compose_config, tiny_overrides
+
+from gtsweep.cli import overrides as cli
+from gtsweep.cli import search
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.paths import CONF_DIR, PACKAGE_DIR, PROJECT_DIR
+from gtsweep.orchestration.grid import REGISTRIES, build_grid
+from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.stages.detect import DETECTORS
+
+MY_STAR = """\
+# detector/my_star.yaml: OpenCV's CenSurE with a smaller border
+factory: cv2.xfeatures2d.StarDetector_create
+orientation: false
+params: {maxSize: 22}
+"""
+
+
+@pytest.fixture(autouse=True)
+def _declarations_stay_in_the_test(monkeypatch):
+    """Methods declared here are registered process-wide: each test works on copies of the registries."""
+    for registry in REGISTRIES.values():
+        monkeypatch.setattr(registry, "_methods", dict(registry._methods))
+        monkeypatch.setattr(registry, "_declared", dict(registry._declared))
+
+
+@pytest.fixture
+def user_conf(tmp_path) -> Path:
+    conf = tmp_path / "myconf"
+    (conf / "detector").mkdir(parents=True)
+    (conf / "detector" / "my_star.yaml").write_text(MY_STAR)
+    (conf / "detector" / "sift.yaml").write_text("sift:\n  params: {contrastThreshold: 0.02}\n")
+    return conf
+
+
+def test_a_detector_declared_in_yaml_sweeps_beside_a_package_detector(user_conf, tmp_path):
+    overrides = tiny_overrides(tmp_path, "detector=[my_star,orb,sift]", "descriptor=[brief]", "transform=[incremental]",
+                               "runner.backend=serial", "detector.my_star.params.maxSize=30")
+    cfg = compose_config(overrides, config_dir=str(user_conf))
+    assert set(cfg.detector) == {"my_star", "orb", "sift"}  # the declaration keyed by its option name
+    assert cfg.detector.my_star.params.maxSize == 30  # a command-line override wins over the file
+    assert cfg.detector.sift.params == {"contrastThreshold": 0.02}  # the user's sift.yaml, not the package's
+    outcome = run_sweep(cfg, tmp_path / "run")
+    assert {s["key"]: s["status"] for s in outcome.summaries} == {
+        "my_star__nms__brief__incremental": "ok", "orb__nms__brief__incremental": "ok",
+        "sift__nms__brief__incremental": "ok"}
+    star = DETECTORS.get("my_star")
+    assert star.create is __import__("cv2").xfeatures2d.StarDetector_create and star.response  # family default
+    assert build_grid(cfg).detectors["sift"]["params"]["contrastThreshold"] == 0.02
+
+
+def test_user_configs_are_valid_choices(user_conf):
+    args = ["--config-dir", str(user_conf), "detector=all"]
+    (expanded,) = [a for a in cli.expand_all(args) if a.startswith("detector=")]
+    assert "my_star" in expanded and "sift" in expanded
+    # Hydra's sweeper globs over its main directory only: gtsweep expands a glob over the search path itself
+    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[-1] == "detector=my_star"
+    with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
+        cli.expand_all(["-m", "detector=glob(zz*)"])
+    with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
+        cli.validate(["--config-dir", str(user_conf), "detector=[my_starr]"])
+    with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):
+        cli.validate(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
+    cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+    with pytest.raises(UnknownMethod):  # without the user's directory it does not exist
+        cli.validate(["detector=[my_star]"])
+
+
+@pytest.mark.parametrize("node, message", [
+    ({"factory": "cv2.NoSuchDetector_create", "orientation": False}, "factory 'cv2.NoSuchDetector_create': cv2 has "
+                                                                       "no 'NoSuchDetector_create'"),
+    ({"factory": "nomodule.create", "orientation": False}, "no module 'nomodule' can be imported"),
+    ({"factory": "cv2.ORB_create", "orientation": False, "colour": True}, "unknown key 'colour'; its capabilities: "
+                                                                          "orientation, response"),
+    ({"factory": "cv2.ORB_create"}, "declared in YAML, it needs orientation"),
+    ({"factory": "cv2.ORB_create", "orientation": "yes"}, "orientation must be true or false"),
+    ({"factory": "cv2.ORB_create", "orientation": True, "params": {"nfeatures": "x"}}, "rejects its default parameters {'nfeatures': 'x'}"),
+])
+def test_bad_declarations_fail_in_one_line(node, message):
+    cfg = {"detector": {"my_bad": {"params": {}, **node}}, "selector": {"nms": {"params": {}}},
+           "descriptor": {"brief": {"params": {}}}, "transform": {"incremental": {"kind": "pairs"}},
+           "experiment": {"name": "pose"}}
+    with pytest.raises(BadInput) as info:
+        build_grid(cfg)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_declaration_never_replaces_a_method_of_the_code():
+    with pytest.raises(BadInput, match="detector 'sift' is built in"):
+        DETECTORS.declare("sift", {"factory": "cv2.ORB_create", "orientation": True})
+
+
+def test_descriptors_declared_in_yaml_need_a_known_norm():
+    from gtsweep.stages.describe import DESCRIPTORS
+
+    with pytest.raises(BadInput, match="norm must be hamming"):
+        DESCRIPTORS.declare("my_desc", {"factory": "cv2.ORB_create", "norm": "cosine"})
+    method = DESCRIPTORS.declare("my_orb", {"factory": "cv2.ORB_create", "norm": "hamming",
+                                            "excluded_detectors": {"sift": "scales"}})
+    assert method.norm == "hamming" and method.excluded_detectors == {"sift": "scales"}
+
+
+def test_only_the_overrides_are_touched():
+    args = ["--cfg", "job", "detector=all", "seed=1", "-m", "--config-dir", "x"]
+    expanded = cli.expand_all(args)
+    assert expanded[:2] == ["--cfg", "job"] and expanded[3:] == ["seed=1", "-m", "--config-dir", "x"]
+    assert expanded[2].startswith("detector=[agast,")
+    assert cli.prepare(["-sc", "install=bash"]) == ["-sc", "install=bash"]  # shell completion: Hydra's own
+    assert search.parse(["-sc", "install=bash"]).passthrough
+    invocation = search.parse(["detector=[sift]", "--info", "searchpath"])
+    assert invocation.overrides == ("detector=[sift]",) and not invocation.multirun
+
+
+def test_a_users_searchpath_keeps_gtsweeps_entries(user_conf):
+    (prepared,) = [a for a in cli.prepare([f"hydra.searchpath=[file://{user_conf}]"]) if a.startswith("hydra.")]
+    assert prepared == f"hydra.searchpath=[file://{user_conf},file://tuned,pkg://gtsweep.conf]"
+    assert search.search_path([f"hydra.searchpath=[file://{user_conf}]"]) == (
+        search.PRIMARY, f"file://{user_conf}", "file://tuned", "pkg://gtsweep.conf")
+    assert "my_star" in cli.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
+
+
+def test_help_lists_the_groups_on_the_search_path(user_conf, tmp_path):
+    def help_of(*args):
+        done = subprocess.run([sys.executable, "-m", *args, "--help"], cwd=tmp_path, env=cli_env(),
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    text = help_of("gtsweep", "--config-dir", str(user_conf))
+    detectors = re.search(r"^detector: (.*)$", text, re.M).group(1).split(", ")
+    assert "my_star" in detectors and "sift" in detectors
+    assert re.search(r"^sweeps: .*smoke", text, re.M) and "hydra/" not in text.split("== Config ==")[0]
+    assert re.search(r"^dataset: .*synthetic", help_of("gtsweep.datasets"), re.M)
+
+
+def test_shell_completion_installs():
+    done = subprocess.run([sys.executable, "-m", "gtsweep", "-sc", "install=bash"], env=cli_env(),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "complete" in done.stdout, done.stderr
+
+
+def test_pyproject_ships_every_package_and_the_configs():
+    setuptools = tomllib.loads((PROJECT_DIR / "pyproject.toml").read_text())["tool"]["setuptools"]
+    packages = {".".join(p.parent.relative_to(PACKAGE_DIR.parent).parts) for p in PACKAGE_DIR.rglob("__init__.py")}
+    assert packages | {"gtsweep.conf", "gtsweep.conf.sweeps"} == set(setuptools["packages"])
+    assert setuptools["package-dir"] == {"gtsweep.conf": "conf", "gtsweep.conf.sweeps": "sweeps"}
+    assert CONF_DIR == PROJECT_DIR / "conf" and (CONF_DIR / "__init__.py").exists()

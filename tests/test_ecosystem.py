@@ -1,0 +1,89 @@
+"""Small pieces of being a good citizen: Ray's options, MLflow run names, tuned-config headers, the combined table
+of a multirun, what a report's titles say they were computed on."""
+from __future__ import annotations
+
+import json
+import logging
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+
+from gtsweep.core.errors import BadInput
+from gtsweep.optimize.output import storage_label
+from gtsweep.orchestration import executor
+from gtsweep.report.combine import combine, mean_summary
+from gtsweep.report.tables import sample_note
+from gtsweep.tracking.tags import cell_names, overrides_name
+
+
+def test_ray_options_hide_rays_warnings_and_the_dashboard_unless_asked(monkeypatch):
+    options = executor.ray_options({})
+    assert options["include_dashboard"] is False and options["logging_level"] == logging.ERROR
+    assert executor.ray_options({"ray_log_level": "warning"})["logging_level"] == logging.WARNING
+    monkeypatch.setattr(executor, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
+    with pytest.raises(BadInput, match=r"runner.dashboard=true needs Ray's dashboard: pip install 'ray\[default\]'"):
+        executor.ray_options({"dashboard": True})
+    monkeypatch.setattr(executor, "_dashboard_missing", lambda: None)
+    assert executor.ray_options({"dashboard": True})["include_dashboard"] is True
+
+
+def test_run_names_fit_the_name_column():
+    cell = SimpleNamespace
+    cells = [cell(key="sift__nms__brief__incremental", detector="sift", selector="nms", descriptor="brief",
+                  transform="incremental"),
+             cell(key="orb__anms__-__rotation", detector="orb", selector="anms", descriptor=None, transform="rotation")]
+    assert cell_names(cells, several_selectors=False) == {"sift__nms__brief__incremental": "sift·brief·inc",
+                                                          "orb__anms__-__rotation": "orb·anms·rot"}
+    assert cell_names(cells[:1], several_selectors=True) == {"sift__nms__brief__incremental": "sift·nms·brief·inc"}
+    assert overrides_name(["seed=1", "hydra.run.dir=x"], "job") == "seed=1"
+    assert overrides_name([], "job 3") == "job 3" and len(overrides_name(["a=" + "x" * 99], "")) == 40
+    assert overrides_name(["sweeps=smoke", "dataset.n_incremental=2", "runner.num_cpus=2"], "x") == "sweeps=smoke"
+    assert overrides_name(["runner.num_cpus=1,2"], "x") == "runner.num_cpus=1,2"  # only settings: then those
+
+
+def test_tuned_headers_name_no_path_of_this_machine(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert storage_label(f"sqlite:///{tmp_path}/.gtsweep_cache/optuna.db") == "sqlite:///.gtsweep_cache/optuna.db"
+    assert storage_label("sqlite:////elsewhere/deep/optuna.db") == "sqlite:///optuna.db"
+    assert storage_label("postgresql://me:secret@db/optuna") == "postgresql://me:***@db/optuna"
+
+
+def _summary(key, seed_value, status="ok", views=9):
+    detector, selector, descriptor, transform = key.split("__")
+    return {"key": key, "status": status, "experiment": "pose", "n_views": views, "hash": "h",
+            "methods": {"detector": detector, "selector": selector, "descriptor": descriptor, "transform": transform},
+            "metrics": {"pose_success": seed_value, "precision": 0.5}}
+
+
+def test_a_multirun_combines_seeds_as_repeats(tmp_path):
+    for job, (seed, value) in enumerate([(0, 0.4), (1, 0.6)]):
+        cells = tmp_path / str(job) / "cells"
+        cells.mkdir(parents=True)
+        summary = _summary("orb__nms__orb__incremental", value)
+        (cells / f"{summary['key']}.json").write_text(json.dumps(summary))
+        (tmp_path / str(job) / "sweep.json").write_text(json.dumps(
+            {"overrides": [f"seed={seed}", "detector=[orb]", "descriptor=[orb]"]}))
+    files = combine(tmp_path, plots=False)
+    rows = pd.read_csv(tmp_path / "combined" / "all_results.csv")
+    assert sorted(rows["seed"]) == [0, 1] and set(rows["setting"]) == {"all"}
+    summary = pd.read_csv(tmp_path / "combined" / "summary.csv").iloc[0]
+    assert summary["n"] == 2 and summary["pose_success_mean"] == pytest.approx(0.5)
+    assert summary["pose_success_std"] == pytest.approx(0.1414, abs=1e-4)
+    assert "0.500 ± 0.141 (2)" in (tmp_path / "combined" / "summary.md").read_text()
+    table = tmp_path / "combined" / "report" / "table4_incremental.md"
+    assert table in files and "| ORB | 0.50 (0.70) |" in table.read_text()  # the mean, beside the paper's
+
+
+def test_mean_summary_keeps_failed_repeats_out():
+    ok, failed = _summary("a__nms__b__rotation", 0.8), _summary("a__nms__b__rotation", None, status="error")
+    assert mean_summary([failed, ok])["metrics"]["pose_success"] == 0.8
+    assert mean_summary([failed])["status"] == "error"
+
+
+def test_titles_say_what_a_table_was_computed_on():
+    part = pd.DataFrame({"status": ["ok", "ok", "na"], "n_views": [27, 27, None],
+                         "transform": ["incremental", "incremental", "incremental"]})
+    assert sample_note(part) == "27 pairs per cell; transforms: incremental"
+    part = pd.DataFrame({"status": ["ok", "ok"], "n_views": [12, 36], "transform": ["rotation", "noise"]})
+    assert sample_note(part) == "12–36 views per cell; transforms: noise, rotation"
