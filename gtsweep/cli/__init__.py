@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 
+from gtsweep.cli import lifecycle
 from gtsweep.cli.overrides import (
     expand_all,
     fail,
@@ -19,18 +20,29 @@ from gtsweep.cli.overrides import (
 )
 from gtsweep.core.errors import GtsweepError
 
+#: Flags that only print (help, config): no output directory needed.
+PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")
+
 
 def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
+    lifecycle.COMMAND = list(args)
     multirun = "-m" in args or "--multirun" in args
     try:
         args = expand_all(args)
         validate(args)
         args = force_add(args)
         args = place(args, [*resume_args(args, multirun), searchpath_override()])
+        if not any(a in PRINT_ONLY for a in args):
+            lifecycle.prepare_output(args, multirun)
     except GtsweepError as e:
         fail(e)
+    lifecycle.register_resolvers()
     sys.argv = [sys.argv[0], *args]
-    from gtsweep.cli.app import hydra_main
+    with lifecycle.interruptible():  # Ctrl-C while Hydra composes or imports: one line too
+        try:
+            from gtsweep.cli.app import hydra_main
 
-    hydra_main()
+            hydra_main()
+        except lifecycle.Interrupted as e:
+            lifecycle.exit_interrupted(e, "no cell has finished")

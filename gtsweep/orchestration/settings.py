@@ -32,8 +32,10 @@ SETTINGS = {
     "runner.shard_size": _COUNT,
     "runner.opencv_threads": Range(1, None, integer=True, optional=True),
     "runner.progress": Choice((True, False)),
+    "runner.connect_timeout_s": Range(0, 600, low_open=True),
     "cache.enabled": Choice((True, False)),
     "mlflow.enabled": Choice((True, False)),
+    "mlflow.timeout_s": Range(0, 600, low_open=True),
     "report.plots": Choice((True, False)),
 }
 

@@ -5,6 +5,7 @@ This is the driver. It alone writes result files (and, through ``hooks``, to MLf
 from __future__ import annotations
 
 import json
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,10 +13,11 @@ from typing import Callable, Mapping
 
 import pandas as pd
 
+from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.datasets import load_dataset
-from gtsweep.orchestration.cache import cache_directory
-from gtsweep.orchestration.executor import backend
+from gtsweep.orchestration.cache import cache_state
+from gtsweep.orchestration.executor import backend, check_address
 from gtsweep.orchestration.grid import Cell, Grid, build_grid
 from gtsweep.orchestration.results import ResultStore, summarize
 from gtsweep.orchestration.runner import RunStats, plan, run
@@ -38,6 +40,7 @@ class SweepOutcome:
     table: Path | None = None
     failed: list[str] = field(default_factory=list)
     skipped_items: list[str] = field(default_factory=list)  # bad data items skipped under dataset.skip_bad
+    cache: str = ""  # the keypoint cache: "on: <dir>" or "off: <why>"
 
 
 def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) -> dict:
@@ -51,12 +54,18 @@ def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) 
 
 
 def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
-              on_start: Callable[[Grid, str], None] | None = None) -> SweepOutcome:
-    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete there (same config) are kept."""
+              on_start: Callable[[Grid, str], None] | None = None,
+              on_checked: Callable[[], None] | None = None) -> SweepOutcome:
+    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete (same config) are kept, failed
+    ones recomputed. ``on_checked`` runs once the settings and the Ray address are checked, before any work."""
     start = time.perf_counter()
     grid = build_grid(cfg)
     runner_cfg = plain(cfg.get("runner")) or {}
-    backend(runner_cfg)  # checked before the data set is loaded
+    if backend(runner_cfg) == "ray":
+        check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
+    if on_checked is not None:
+        on_checked()
+    cache_dir, cache_note = cache_state(cfg)
     dataset = load_dataset(cfg["dataset"])
     fingerprint = dataset.fingerprint()
     seed = int(cfg.get("seed", 0))
@@ -92,11 +101,15 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     stats = RunStats()
     if pending:
         jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
-        stats = run(grid, shards, jobs, runner_cfg, seed, cache_directory(cfg), finish)
+        stats = run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish)
+    if stats.cache_write_errors:
+        cache_note = f"{cache_note} ({stats.cache_write_errors} task(s) could not write to it and went on without)"
+        print(f"gtsweep: warning: {stats.cache_write_errors} task(s) could not write to the keypoint cache "
+              f"{cache_dir}; they ran without it", file=sys.stderr)
     ordered = [summaries[cell.key] for cell in grid.cells]
     outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
-                           skipped_items=list(getattr(dataset, "skipped", [])))
+                           skipped_items=list(getattr(dataset, "skipped", [])), cache=cache_note)
     outcome.table = store.write_table(ordered)
     _write_run_record(outcome, dataset)
     return outcome
@@ -109,10 +122,12 @@ def _write_run_record(outcome: SweepOutcome, dataset) -> None:
         "skipped_items": outcome.skipped_items,
         "cells": len(outcome.summaries),
         "resumed_cells": outcome.resumed,
+        "cache": outcome.cache,
         "cache_hits": outcome.stats.cache_hits,
         "cache_misses": outcome.stats.cache_misses,
+        "cache_corrupt": outcome.stats.cache_corrupt,  # bad entries found, removed and recomputed
         "detection_tasks": outcome.stats.detection_tasks,
         "pairing_tasks": outcome.stats.pairing_tasks,
         "seconds": round(outcome.seconds, 3),
     }
-    (outcome.output_dir / "run.json").write_text(json.dumps(record, indent=1))
+    write_atomically(outcome.output_dir / "run.json", json.dumps(record, indent=1))
