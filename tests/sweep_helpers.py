@@ -22,8 +22,10 @@ def tiny_overrides(tmp_path: Path, *extra: str) -> list[str]:
 
 
 def cli_env() -> dict:
-    """The environment for ``python -m gtsweep`` subprocesses (the package imported from this checkout)."""
-    return {**os.environ, "PYTHONPATH": str(PROJECT_DIR)}
+    """The environment for ``python -m gtsweep`` subprocesses (the package imported from this checkout), without
+    the ``MLFLOW_TRACKING_URI`` that ``mlflow.set_tracking_uri`` in an earlier test exports to children."""
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+    return {**env, "PYTHONPATH": str(PROJECT_DIR)}
 
 
 def run_cli(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:

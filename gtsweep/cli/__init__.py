@@ -1,18 +1,23 @@
 """The command line on top of every layer: ``python -m gtsweep``.
 
 Before Hydra parses the command line, :mod:`gtsweep.cli.overrides` expands ``group=all``, checks every override
-(one line and exit code 2 for a mistake) and, with ``resume=true``, reopens the newest earlier run; then the Hydra
+(one line and exit code 2 for a mistake) and, with ``resume=true``, reopens the newest earlier run; the output
+directory is checked (writable, not in use by another run) before Hydra writes anything; then the Hydra
 application :mod:`gtsweep.cli.app` runs the job. Only the overrides are touched: Hydra's own flags work anywhere.
 """
 from __future__ import annotations
 
 import sys
 
+from gtsweep.cli import lifecycle
 from gtsweep.cli.overrides import fail, place, prepare, resume_args
 from gtsweep.cli.search import parse
 from gtsweep.core.configs import ignore_missing_dir
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
+
+#: Flags that only print (help, config): no output directory needed.
+PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -22,10 +27,17 @@ def main(argv: list[str] | None = None) -> None:
         try:
             args = prepare(args)
             args = place(args, resume_args(args, invocation.multirun))
+            if not any(a in PRINT_ONLY for a in args):
+                lifecycle.prepare_output(args, invocation.multirun)
         except GtsweepError as e:
             fail(e)
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
+    lifecycle.register_resolvers()
     sys.argv = [sys.argv[0], *args]
-    from gtsweep.cli.app import hydra_main
+    with lifecycle.interruptible():  # Ctrl-C while Hydra composes or imports: one line too
+        try:
+            from gtsweep.cli.app import hydra_main
 
-    hydra_main()
+            hydra_main()
+        except lifecycle.Interrupted as e:
+            lifecycle.exit_interrupted(e, "no cell has finished")

@@ -1,4 +1,8 @@
-"""The Hydra task function: one job = one grid, evaluated by :func:`gtsweep.orchestration.sweep.run_sweep`."""
+"""The Hydra task function: one job = one grid, evaluated by :func:`gtsweep.orchestration.sweep.run_sweep`.
+
+Bad input stops with one line and exit code 2; Ctrl-C or SIGTERM stops the workers, marks the MLflow run KILLED
+and prints how to resume (:mod:`gtsweep.cli.lifecycle`). The run's story goes to the job's log (``app.log``).
+"""
 from __future__ import annotations
 
 import json
@@ -11,10 +15,20 @@ import pandas as pd
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from gtsweep.cli.lifecycle import (
+    claim,
+    exit_interrupted,
+    interruptible,
+    interruption,
+    register_resolvers,
+    stop_workers,
+)
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
+from gtsweep.core.atomic import write_atomically
 from gtsweep.core.configs import configs_of_sources, register_help_resolver
 from gtsweep.core.errors import GtsweepError
+from gtsweep.core.interrupts import Interrupted
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
@@ -22,6 +36,7 @@ from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
 from gtsweep.report.tables import Table, frame, sample_note, write_report
 
 log = logging.getLogger(__name__)
+register_resolvers()  # also in processes that only import this module (Hydra's joblib launcher workers)
 
 
 def hydra_main() -> None:
@@ -35,18 +50,36 @@ def _app(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     keyed_methods(cfg, configs_of_sources(hydra_cfg.runtime.config_sources), hydra_cfg.overrides.task)
     output_dir = Path(hydra_cfg.runtime.output_dir)
-    output_dir.mkdir(parents=True, exist_ok=True)
-    (output_dir / SWEEP_RECORD).write_text(json.dumps({"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:],
-                                                       "overrides": list(hydra_cfg.overrides.task)}))
+    try:
+        claim(output_dir)
+        record = {"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:], "overrides": list(hydra_cfg.overrides.task)}
+        write_atomically(output_dir / SWEEP_RECORD, json.dumps(record))
+    except (GtsweepError, OSError) as e:
+        fail(e if isinstance(e, GtsweepError) else f"cannot write the output directory {output_dir}: {e}")
     log.info("gtsweep %s in %s", " ".join(sys.argv[1:]), output_dir)
-    if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver
-        from gtsweep.optimize.driver import main as optimize_main
+    with interruptible():
+        if cfg.experiment.name == "optimize":  # parameter optimisation is its own driver
+            _optimize(cfg, output_dir)
+        else:
+            _sweep(cfg, hydra_cfg, output_dir)
 
-        try:
-            optimize_main(cfg, output_dir)
-        except GtsweepError as e:
-            fail(e)
-        return
+
+def _optimize(cfg: DictConfig, output_dir: Path) -> None:
+    from gtsweep.optimize.driver import main as optimize_main
+
+    try:
+        optimize_main(cfg, output_dir)
+    except GtsweepError as e:
+        stop_workers()
+        fail(e)
+    except (Interrupted, Exception) as e:
+        if (signal := interruption(e)) is None:
+            raise
+        stop_workers()
+        exit_interrupted(signal, "finished trials are kept in the study")
+
+
+def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
     tracker = None
     progress = Progress(enabled=cfg.runner.progress)
     try:
@@ -59,16 +92,27 @@ def _app(cfg: DictConfig) -> None:
                                    nest_under=nest_under)
             hooks = (tracker.log_cell,)
             on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
-        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress)
+        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress,
+                            on_checked=tracker.open if tracker is not None else None)
         progress.phase("report")
         tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
         progress.close()
+        stop_workers()
         if tracker is not None:
             tracker.abort(str(e))
         fail(e)
+    except (Interrupted, Exception) as e:
+        if (signal := interruption(e)) is None:
+            raise
+        progress.close()
+        stop_workers()
+        if tracker is not None:
+            tracker.abort(str(signal), status="KILLED")
+        kept = len(list((output_dir / "cells").glob("*.json")))
+        exit_interrupted(signal, f"{kept} finished cell(s) kept in {output_dir}")
     progress.close()
     summary = [format_outcome(outcome, tables), f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
     if tracker is not None:
@@ -119,7 +163,8 @@ def format_outcome(outcome: SweepOutcome, tables: list[Table] = ()) -> str:
         f"{(statuses == 'na').sum()} not applicable, {(statuses == 'error').sum()} failed, "
         f"{outcome.resumed} kept from an earlier run) in {outcome.seconds:.1f} s",
         f"keypoint cache: {outcome.stats.cache_hits} hits, {outcome.stats.cache_misses} misses "
-        f"(= detector calls)",
+        f"(= detector calls)" + (f", {outcome.stats.cache_corrupt} damaged entries replaced"
+                                 if outcome.stats.cache_corrupt else ""),
         f"results: {outcome.table}",
     ]
     if outcome.skipped_items:

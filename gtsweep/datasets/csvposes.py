@@ -43,7 +43,8 @@ def read_rows(file: Path, problems: Problems) -> dict[str, list[Entry]]:
     except (OSError, UnicodeDecodeError, csv.Error) as error:
         raise BadInput(f"cannot read {file}: {error}") from None
     columns = list(COLUMNS)
-    if rows and floats(rows[0][1][1:2]) is None:
+    first = rows[0][1] if rows else []
+    if len(first) > 1 and all(floats([cell]) is None for cell in first[1:4]):  # a header: no number in x, y, theta
         columns = [c.lower() for c in rows.pop(0)[1]]
         if columns[:4] != list(COLUMNS[:4]):
             raise BadInput(f"{file}:1: header must start with image,x,y,theta, found {','.join(columns)}")

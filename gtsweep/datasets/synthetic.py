@@ -5,7 +5,8 @@ Per texture a floor is generated from the seed (:mod:`gtsweep.datasets.floors`),
 "captured" with sensor noise; absolute test views also get a different day's photometry
 (:mod:`gtsweep.datasets.photometric`). Views are written once as PNGs with an ``index.json`` under
 ``<cache_dir>/datasets/synthetic-<fingerprint>/`` (built in a temporary folder, then renamed, so an interrupted run never
-leaves half a data set); later loads only read the index.
+leaves half a data set); later loads only read the index. The temporary folder's name holds the writer's pid: the
+next load removes those of writers that died (killed mid-render).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from typing import Mapping
 import cv2
 import numpy as np
 
+from gtsweep.core.atomic import respect_umask
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import DEFAULT_CACHE_DIR
 from gtsweep.datasets import floors, layout, photometric
@@ -146,11 +148,36 @@ def render_texture(texture: str, options: Mapping, folder: Path) -> list[dict]:
     return records
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def remove_dead_leftovers(folder: Path, max_age_s: float = 86400) -> None:
+    """Remove the temporary folders ``.synthetic-<fingerprint>-<pid>-*`` in ``folder`` whose writer is gone (and
+    those without a pid, written by older versions, after ``max_age_s``)."""
+    for leftover in folder.glob(".synthetic-*"):
+        parts = leftover.name.split("-")
+        try:
+            dead = not _alive(int(parts[2])) if len(parts) > 3 and parts[2].isdigit() else \
+                time.time() - leftover.stat().st_mtime > max_age_s
+        except OSError:
+            continue
+        if dead:
+            shutil.rmtree(leftover, ignore_errors=True)
+
+
 def render(options: Mapping, target: Path) -> None:
     """Render the whole data set into ``target`` atomically (temporary folder, then rename)."""
     target.parent.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f".{target.name}-", dir=target.parent))
+    work = Path(tempfile.mkdtemp(prefix=f".{target.name}-{os.getpid()}-", dir=target.parent))
     try:
+        respect_umask(work, directory=True)  # mkdtemp makes it 0700, and it becomes the data set's folder
         (work / "images").mkdir()
         start = time.perf_counter()
         records = [r for texture in options["textures"] for r in render_texture(texture, options, work)]
@@ -199,6 +226,8 @@ def load(cfg: Mapping) -> Dataset:
     options = check(opts.read(cfg, DEFAULTS, "synthetic"))
     fingerprint = fingerprint_of(GENERATOR_VERSION, _content_options(options))
     folder = Path(str(options["cache_dir"])).expanduser() / "datasets" / f"synthetic-{fingerprint}"
+    if folder.parent.is_dir():
+        remove_dead_leftovers(folder.parent)
     if not (folder / "index.json").is_file():
         render(options, folder)
     return from_index(folder, fingerprint)

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from gtsweep.core.config import plain
+from gtsweep.core.interrupts import Interrupted
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
 from gtsweep.optimize.output import (
     describe_best,
@@ -26,7 +27,7 @@ from gtsweep.optimize.settings import job_transforms, read_settings
 from gtsweep.optimize.study import complete_trials, open_study, optimise
 from gtsweep.optimize.targets import build_targets, study_name
 from gtsweep.orchestration.cache import cache_directory
-from gtsweep.orchestration.executor import backend, make_executor
+from gtsweep.orchestration.executor import backend, check_address, make_executor
 from gtsweep.orchestration.shards import load_shards
 
 
@@ -35,13 +36,18 @@ def main(cfg, output_dir: str | Path) -> list[dict]:
     from omegaconf import OmegaConf
 
     from gtsweep.datasets import load_dataset
+    from gtsweep.tracking.store import open_store
     from gtsweep.tracking.study import StudyTracker
 
     output_dir = Path(output_dir)
     settings = read_settings(cfg)
     runner_cfg = plain(cfg.get("runner")) or {}
-    backend(runner_cfg)
+    if backend(runner_cfg) == "ray":
+        check_address(runner_cfg)
     targets = build_targets(cfg, settings)
+    mlflow_cfg = plain(cfg.get("mlflow")) or {}
+    if mlflow_cfg.get("enabled", True):  # the tracking store reachable (and created) before any work
+        open_store(mlflow_cfg, mlflow_cfg.get("experiment") or "gtsweep")
     seed = int(cfg.get("seed", 0))
     cache_dir = cache_directory(cfg)
     dataset = load_dataset(cfg["dataset"])
@@ -64,9 +70,10 @@ def main(cfg, output_dir: str | Path) -> list[dict]:
             counts = optimise(study, target, settings, shards, executor, seed, cache_dir,
                               on_trial=tracker.log_trial if tracker else None)
             best = study.best_trial
-        except BaseException:
+        except BaseException as e:
             if tracker is not None:
-                tracker.end(study, [], status="FAILED")
+                killed = isinstance(e, Interrupted) or isinstance(e.__cause__, Interrupted)  # Ray: SystemError
+                tracker.end(study, [], status="KILLED" if killed else "FAILED")
             raise
         complete = len(complete_trials(study))
         header = tuned_header(target, settings, name, best, complete, fingerprint)

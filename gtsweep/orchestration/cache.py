@@ -3,14 +3,18 @@
 :func:`detect_cached` is the one way a task detects (the sweep's detection tasks and the optimiser's trials).
 
 The key hashes everything that determines a detection: the image bytes, the detection mask, the detector and
-selector with their parameters, and the library versions. One ``.npz`` file per entry (parallel writers never share
-a file), written to a temporary name and renamed into place, so a reader sees a whole entry or none.
+selector with their parameters, and the library versions. One ``.npz`` file per entry, written to a temporary name
+and renamed into place, so a reader sees a whole entry or none. An entry also holds the key it was written for and a
+checksum of its numbers: a truncated, empty, bit-flipped or misplaced (copied over another) entry is a miss, removed,
+recomputed and counted (``corrupt``). A cache that cannot be written is a warning and the run goes on without it.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+import sys
+import tempfile
 from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
@@ -50,8 +54,16 @@ def detection_key(image: np.ndarray, mask: np.ndarray | None, detector: str, det
     return h.hexdigest()
 
 
+def _checksum(key: str, keypoints: np.ndarray, n_detected: int, seconds: float) -> str:
+    h = hashlib.sha256(key.encode())
+    h.update(f"{keypoints.dtype.str}{keypoints.shape}{int(n_detected)}{float(seconds)!r}".encode())
+    h.update(np.ascontiguousarray(keypoints).tobytes())
+    return h.hexdigest()
+
+
 class KeypointCache:
-    """Keypoints by key in ``directory`` (None: memory only); ``hits`` and ``misses`` count this object's lookups.
+    """Keypoints by key in ``directory`` (None: memory only). Counts this object's lookups: ``hits``, ``misses``,
+    ``corrupt`` (bad entries found, removed and recomputed) and ``write_errors`` (after the first, it stops writing).
 
     Entries are also kept in memory for the object's life, so one task that sees the same reference image under
     several transform strengths reads it once.
@@ -59,8 +71,7 @@ class KeypointCache:
 
     def __init__(self, directory: str | os.PathLike | None):
         self.directory = Path(directory) if directory else None
-        self.hits = 0
-        self.misses = 0
+        self.hits = self.misses = self.corrupt = self.write_errors = 0
         self._memory: dict[str, tuple] = {}
 
     def _path(self, key: str) -> Path:
@@ -72,23 +83,43 @@ class KeypointCache:
             self.hits += 1
             return self._memory[key]
         if self.directory is not None:
-            try:
-                with np.load(self._path(key)) as entry:
-                    found = entry["keypoints"], int(entry["n_detected"]), float(entry["seconds"])
+            found = self._read(self._path(key), key)
+            if found is not None:
                 self.hits += 1
                 self._memory[key] = found
                 return found
-            except (FileNotFoundError, OSError, KeyError, ValueError):
-                pass  # absent or unreadable: recompute (and overwrite)
         self.misses += 1
+        return None
+
+    def _read(self, path: Path, key: str):
+        """The entry at ``path`` if it is whole and was written for ``key``; a bad one is removed (None)."""
+        try:
+            with np.load(path, allow_pickle=False) as entry:
+                found = entry["keypoints"], int(entry["n_detected"]), float(entry["seconds"])
+                verified = str(entry["key"]) == key and str(entry["checksum"]) == _checksum(key, *found)
+        except FileNotFoundError:
+            return None
+        except Exception:  # truncated, empty, not a zip, bad CRC, missing fields, an older format
+            verified = False
+        if verified:
+            return found
+        self.corrupt += 1
+        try:
+            path.unlink(missing_ok=True)
+        except OSError:
+            pass
         return None
 
     def put(self, key: str, keypoints: np.ndarray, n_detected: int, seconds: float) -> None:
         self._memory[key] = (keypoints, n_detected, seconds)
-        if self.directory is None:
+        if self.directory is None or self.write_errors:
             return
-        write_atomically(self._path(key), lambda f: np.savez_compressed(f, keypoints=keypoints,
-                                                                         n_detected=n_detected, seconds=seconds))
+        fields = {"keypoints": keypoints, "n_detected": n_detected, "seconds": seconds, "key": key,
+                  "checksum": _checksum(key, keypoints, n_detected, seconds)}
+        try:
+            write_atomically(self._path(key), lambda f: np.savez_compressed(f, **fields))
+        except OSError:  # full disk, read-only folder: the task goes on with its memory cache
+            self.write_errors += 1
 
 
 def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | None, detector: str,
@@ -102,7 +133,24 @@ def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | No
     return found
 
 
-def cache_directory(cfg: Mapping) -> str | None:
-    """The keypoint cache's absolute directory (``cache.dir``), or None when ``cache.enabled`` is false."""
+def cache_state(cfg: Mapping) -> tuple[str | None, str]:
+    """The keypoint cache's absolute directory (``cache.dir``) and a note for run.json. None when
+    ``cache.enabled`` is false, or when the directory cannot be written: then one warning line on stderr."""
     cache_cfg = plain(cfg.get("cache")) or {}
-    return str(Path(cache_cfg["dir"]).resolve()) if cache_cfg.get("enabled", True) else None
+    if not cache_cfg.get("enabled", True):
+        return None, "off: cache.enabled=false"
+    directory = Path(cache_cfg["dir"]).resolve()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as e:
+        reason = f"cannot write {directory}: {e.strerror or e}"
+        print(f"gtsweep: warning: running without a keypoint cache ({reason})", file=sys.stderr)
+        return None, f"off: {reason}"
+    return str(directory), f"on: {directory}"
+
+
+def cache_directory(cfg: Mapping) -> str | None:
+    """The keypoint cache's directory, or None (see :func:`cache_state`)."""
+    return cache_state(cfg)[0]

@@ -8,15 +8,21 @@ inputs give bit-identical results on either backend.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.util
 import logging
+import os
+import signal
+import socket
 import sys
+import threading
 import traceback
 from collections import deque
 from typing import Any, Callable, Iterator, Mapping
 
 from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.interrupts import raise_pending
 
 BACKENDS = ("ray", "serial")
 log = logging.getLogger(__name__)
@@ -91,6 +97,7 @@ class SerialExecutor:
     def results(self) -> Iterator[tuple[Any, Any]]:
         """Run the queued tasks in order; ``(tag, result)`` for each tagged one."""
         while self.queue:
+            raise_pending()
             task = self.queue.popleft()
             self._run(task)
             if task.tag is not None:
@@ -150,6 +157,7 @@ class RayExecutor:
         import ray
 
         while self.pending:
+            raise_pending()
             done, _ = ray.wait(list(self.pending), num_returns=min(batch, len(self.pending)), timeout=0.2)
             for ref in done:
                 tag = self.pending.pop(ref)
@@ -219,12 +227,57 @@ def _report_dashboard(context) -> None:
         print(f"gtsweep: Ray dashboard at {url}", file=sys.stderr)
 
 
+def check_address(runner_cfg: Mapping) -> None:
+    """A ``host:port`` cluster address must accept a TCP connection within ``runner.connect_timeout_s``: Ray
+    itself retries "Failed to connect to GCS" for minutes. ``local`` and ``auto`` need no probe."""
+    from gtsweep.orchestration.settings import SETTINGS
+
+    address = str(runner_cfg.get("address") or "local")
+    timeout = SETTINGS["runner.connect_timeout_s"].check("runner.connect_timeout_s",
+                                                         runner_cfg.get("connect_timeout_s", 10))
+    if address in ("local", "auto"):
+        return
+    host, _, port = address.split("://")[-1].rpartition(":")
+    if not host or not port.isdigit():
+        raise BadInput(f"runner.address must be local, auto or host:port, got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as e:
+        reason = "timed out" if isinstance(e, socket.timeout) else e.strerror or str(e)
+        raise BadInput(f"cannot reach the Ray cluster at '{address}' within {timeout:g} s "
+                       f"(runner.connect_timeout_s): {reason}") from None
+
+
+@contextlib.contextmanager
+def _loopback_only():
+    """Make ``ray.init`` start a node on 127.0.0.1. Ray 2.60 replaces ``_node_ip_address="127.0.0.1"`` by the
+    machine's address (``services.resolve_ip_for_localhost``) unless its "no cluster" mode is on, the
+    ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` of macOS and Windows: then GCS, raylet, workers and agents bind to the
+    loopback address only."""
+    from ray._private import ray_constants
+
+    key, before = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", ray_constants.ENABLE_RAY_CLUSTER
+    saved = os.environ.get(key)
+    os.environ[key], ray_constants.ENABLE_RAY_CLUSTER = "0", False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = before
+        if saved is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = saved
+
+
 def connect(runner_cfg: Mapping) -> None:
     """Start or join Ray once per process.
 
-    ``address: local`` starts an embedded Ray (plain ``ray.init()`` would silently attach to a stale cluster
-    recorded in /tmp/ray). ``auto`` joins the cluster this machine belongs to; ``host:port`` a remote head, which
-    since Ray 2.59 needs its token: export ``RAY_AUTH_MODE=token`` and ``RAY_AUTH_TOKEN`` (see README).
+    ``address: local`` starts an embedded Ray that listens on 127.0.0.1 only (:func:`_loopback_only`; plain
+    ``ray.init()`` would silently attach to a stale cluster recorded in /tmp/ray, and listen on every interface).
+    ``auto`` joins the cluster this machine belongs to; ``host:port`` a remote head (probed first,
+    :func:`check_address`), which since Ray 2.59 needs its token: export ``RAY_AUTH_MODE=token`` and
+    ``RAY_AUTH_TOKEN`` (see README). The caller's SIGTERM handler is kept (``ray.init`` replaces it with one that
+    exits at once).
     """
     import ray
 
@@ -234,15 +287,23 @@ def connect(runner_cfg: Mapping) -> None:
         if address in ("local", "auto") or address.split("://")[-1] == current:
             return
         ray.shutdown()  # connected elsewhere: the requested cluster wins
+    check_address(runner_cfg)
     options = ray_options(runner_cfg)
-    if address == "local":
-        num_cpus = runner_cfg.get("num_cpus")
-        if num_cpus is not None and (not isinstance(num_cpus, int) or num_cpus < 1):
-            raise BadInput(f"runner.num_cpus must be a positive integer or null, got {num_cpus!r}")
-        _report_dashboard(ray.init(address="local", num_cpus=num_cpus, **options))
-        return
+    on_sigterm = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     try:
-        _report_dashboard(ray.init(address=address, **options))
-    except (ConnectionError, RuntimeError, ValueError) as e:
-        hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
-        raise BadInput(f"cannot join the Ray cluster at '{address}': {str(e).splitlines()[0]}{hint}") from None
+        if address == "local":
+            num_cpus = runner_cfg.get("num_cpus")
+            if num_cpus is not None and (not isinstance(num_cpus, int) or num_cpus < 1):
+                raise BadInput(f"runner.num_cpus must be a positive integer or null, got {num_cpus!r}")
+            with _loopback_only():
+                _report_dashboard(ray.init(address="local", num_cpus=num_cpus, _node_ip_address="127.0.0.1",
+                                           **options))
+            return
+        try:
+            _report_dashboard(ray.init(address=address, **options))
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
+            raise BadInput(f"cannot join the Ray cluster at '{address}': {str(e).splitlines()[0]}{hint}") from None
+    finally:
+        if on_sigterm is not None:
+            signal.signal(signal.SIGTERM, on_sigterm)

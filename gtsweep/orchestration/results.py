@@ -6,7 +6,8 @@ Layout of a sweep's output directory::
     cells/<cell>.json    the cell's summary; written last, so its presence marks the cell complete
     results.csv          one row per cell (written when the sweep ends)
 
-A cell whose ``.json`` exists with the same configuration hash is complete: a resumed sweep keeps it.
+A cell whose ``.json`` exists with the same configuration hash and did not fail is complete: a resumed sweep
+keeps it (a failed cell is computed again).
 """
 from __future__ import annotations
 
@@ -66,13 +67,13 @@ class ResultStore:
         self.cells_dir = self.directory / "cells"
 
     def complete(self, key: str, cell_hash: str) -> dict | None:
-        """The summary of a finished cell with this configuration hash, else None."""
+        """The summary of a finished cell (ok or na) with this configuration hash, else None."""
         path = self.cells_dir / f"{key}.json"
         try:
             summary = json.loads(path.read_text())
         except (FileNotFoundError, ValueError):
             return None
-        return summary if summary.get("hash") == cell_hash else None
+        return summary if summary.get("hash") == cell_hash and summary.get("status") != "error" else None
 
     def write_cell(self, key: str, summary: dict, rows: pd.DataFrame | None) -> None:
         """Write a cell's rows (with the derived metrics), then its summary (the completion marker)."""
@@ -93,6 +94,9 @@ class ResultStore:
         return path
 
 
+METHOD_COLUMNS = ("detector", "selector", "descriptor", "transform")
+
+
 def summary_table(summaries: list[dict]) -> pd.DataFrame:
     """One row per cell: its methods, status, reason, then its metrics in schema order.
 
@@ -102,4 +106,7 @@ def summary_table(summaries: list[dict]) -> pd.DataFrame:
                for s in summaries]
     table = pd.DataFrame.from_records(records)
     measured = {m for s in summaries for m in s.get("metrics") or {}}
-    return table[[c for c in table.columns if c not in measured] + schema.ordered(measured)]
+    # fixed order: a kept cell's methods come back from its JSON sorted, a fresh one's in grid order
+    first = [c for c in (*METHOD_COLUMNS, "status", "reason") if c in table.columns]
+    others = sorted(c for c in table.columns if c not in measured and c not in first)
+    return table[first + others + schema.ordered(measured)]

@@ -36,10 +36,13 @@ class DetectionJob:
 
 @dataclass
 class RunStats:
-    """What a run did: cache hits and misses (a miss is one detector call) and task counts."""
+    """What a run did: cache hits and misses (a miss is one detector call), bad cache entries replaced, failed
+    cache writes, and task counts."""
 
     cache_hits: int = 0
     cache_misses: int = 0
+    cache_corrupt: int = 0
+    cache_write_errors: int = 0
     detection_tasks: int = 0
     pairing_tasks: int = 0
 
@@ -79,6 +82,8 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
         if isinstance(job, DetectionJob):
             stats.cache_hits += result.get("hits", 0)
             stats.cache_misses += result.get("misses", 0)
+            stats.cache_corrupt += result.get("corrupt", 0)
+            stats.cache_write_errors += result.get("write_errors", 0)
         tracker.add(job, result)
     return stats
 

@@ -34,8 +34,10 @@ SETTINGS = {
     "runner.progress": Choice((True, False)),
     "runner.dashboard": Choice((True, False)),
     "runner.ray_log_level": Choice(("debug", "info", "warning", "error")),
+    "runner.connect_timeout_s": Range(0, 600, low_open=True),
     "cache.enabled": Choice((True, False)),
     "mlflow.enabled": Choice((True, False)),
+    "mlflow.timeout_s": Range(0, 600, low_open=True),
     "report.plots": Choice((True, False)),
 }
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,10 +14,11 @@ from typing import Callable, Mapping
 
 import pandas as pd
 
+from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.datasets import load_dataset
-from gtsweep.orchestration.cache import cache_directory
-from gtsweep.orchestration.executor import backend
+from gtsweep.orchestration.cache import cache_state
+from gtsweep.orchestration.executor import backend, check_address
 from gtsweep.orchestration.grid import Cell, Grid, build_grid
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
@@ -41,6 +43,7 @@ class SweepOutcome:
     table: Path | None = None
     failed: list[str] = field(default_factory=list)
     skipped_items: list[str] = field(default_factory=list)  # bad data items skipped under dataset.skip_bad
+    cache: str = ""  # the keypoint cache: "on: <dir>" or "off: <why>"
 
 
 def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) -> dict:
@@ -56,9 +59,11 @@ def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) 
 
 
 def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
-              on_start: Callable[[Grid, str], None] | None = None, progress: Progress | None = None) -> SweepOutcome:
-    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete there (same config) are kept.
-    ``progress`` shows the phases and counts the cells (none: the job's log only)."""
+              on_start: Callable[[Grid, str], None] | None = None, progress: Progress | None = None,
+              on_checked: Callable[[], None] | None = None) -> SweepOutcome:
+    """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete (same config) are kept, failed
+    ones recomputed. ``progress`` shows the phases and counts the cells (none: the job's log only);
+    ``on_checked`` runs once the settings and the Ray address are checked, before any work."""
     start = time.perf_counter()
     progress = progress or Progress(enabled=False)
     grid = build_grid(cfg)
@@ -66,7 +71,11 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     log.info("grid: %d cells (%s experiment), %d detector(s), %d selector(s), %d descriptor(s), %d transform(s)",
              len(grid.cells), grid.experiment["name"], len(grid.detectors), len(grid.selectors),
              len(grid.descriptors), len(grid.transforms))
-    backend(runner_cfg)  # checked before the data set is loaded
+    if backend(runner_cfg) == "ray":
+        check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
+    if on_checked is not None:
+        on_checked()
+    cache_dir, cache_note = cache_state(cfg)
     progress.phase("render data set")
     dataset = load_dataset(cfg["dataset"])
     fingerprint = dataset.fingerprint()
@@ -115,13 +124,19 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
         if backend(runner_cfg) == "ray":
             progress.phase("start Ray")
-        stats = run(grid, shards, jobs, runner_cfg, seed, cache_directory(cfg), finish, on_started=start_evaluating)
+        stats = run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish, on_started=start_evaluating)
     else:
         start_evaluating()
+    if stats.cache_write_errors:
+        cache_note = f"{cache_note} ({stats.cache_write_errors} task(s) could not write to it and went on without)"
+        log.warning("%d task(s) could not write to the keypoint cache %s; they ran without it",
+                    stats.cache_write_errors, cache_dir)
+        print(f"gtsweep: warning: {stats.cache_write_errors} task(s) could not write to the keypoint cache "
+              f"{cache_dir}; they ran without it", file=sys.stderr)
     ordered = [summaries[cell.key] for cell in grid.cells]
     outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
-                           skipped_items=list(getattr(dataset, "skipped", [])))
+                           skipped_items=list(getattr(dataset, "skipped", [])), cache=cache_note)
     outcome.table = store.write_table(ordered)
     _write_run_record(outcome, dataset)
     return outcome
@@ -134,10 +149,12 @@ def _write_run_record(outcome: SweepOutcome, dataset) -> None:
         "skipped_items": outcome.skipped_items,
         "cells": len(outcome.summaries),
         "resumed_cells": outcome.resumed,
+        "cache": outcome.cache,
         "cache_hits": outcome.stats.cache_hits,
         "cache_misses": outcome.stats.cache_misses,
+        "cache_corrupt": outcome.stats.cache_corrupt,  # bad entries found, removed and recomputed
         "detection_tasks": outcome.stats.detection_tasks,
         "pairing_tasks": outcome.stats.pairing_tasks,
         "seconds": round(outcome.seconds, 3),
     }
-    (outcome.output_dir / "run.json").write_text(json.dumps(record, indent=1))
+    write_atomically(outcome.output_dir / "run.json", json.dumps(record, indent=1))

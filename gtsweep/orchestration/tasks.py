@@ -39,8 +39,8 @@ def detect_shard(shard: dict, transform: str, transform_cfg: dict, method: dict,
     """Detect and select on every view of a shard; returns ``(payload, summary)``.
 
     ``method``: detector, detector_cfg, selector, selector_cfg. ``payload`` (for the pairing tasks) holds the
-    keypoints and rows per view; ``summary`` (for the driver) holds the rows, the cache hits and misses (a miss
-    is one detector call) and when the task ran. ``declared``: the grid's methods declared in YAML.
+    keypoints and rows per view; ``summary`` (for the driver) holds the rows, the cache counts (:func:`counts`; a
+    miss is one detector call) and when the task ran. ``declared``: the grid's methods declared in YAML.
     """
     started = time.time()
     cache = KeypointCache(cache_dir)
@@ -48,10 +48,15 @@ def detect_shard(shard: dict, transform: str, transform_cfg: dict, method: dict,
         declare(declared or {})
         keypoints, rows = detect_views(cache, shard, transform, transform_cfg, method, experiment, seed)
     except Exception as e:  # reported with the cell; the sweep goes on
-        failed = {**failure(e), "hits": cache.hits, "misses": cache.misses}
+        failed = {**failure(e), **counts(cache)}
         return failed, _timed(started, failed)
-    summary = {"rows": rows, "hits": cache.hits, "misses": cache.misses}
+    summary = {"rows": rows, **counts(cache)}
     return {"keypoints": keypoints, "rows": rows}, _timed(started, summary)
+
+
+def counts(cache: KeypointCache) -> dict:
+    """A task's cache counts for the driver: hits, misses, bad entries replaced, failed writes."""
+    return {"hits": cache.hits, "misses": cache.misses, "corrupt": cache.corrupt, "write_errors": cache.write_errors}
 
 
 def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict, detector: str, descriptor: str,

@@ -1,19 +1,95 @@
-"""The MLflow store both trackers write to: where it is, its experiment, and how configs become params."""
+"""The MLflow store both trackers write to: where it is, its experiment, and how configs become params.
+
+:func:`open_store` is the one way in. A fresh sqlite store is created and migrated by whichever process first
+takes an exclusive lock on ``<db>.lock``: two sweeps (or the parallel jobs of Hydra's joblib launcher) started
+at once in a new directory would otherwise both run MLflow's migrations and could break the file for good. An
+``http(s)`` server must answer within ``mlflow.timeout_s``; MLflow's own retries then stay short too.
+"""
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import subprocess
+import urllib.error
+import urllib.request
 from pathlib import Path
-from typing import Mapping
+from typing import Iterator, Mapping
 
 from gtsweep.core.errors import BadInput
+
+#: MLflow's own HTTP retries (default 7, with exponential backoff: minutes); the user's environment wins.
+HTTP_RETRIES = "2"
 
 
 def tracking_uri(cfg: Mapping | None) -> str:
     """The configured store: ``mlflow.tracking_uri``, else ``$MLFLOW_TRACKING_URI``, else ./mlflow.db (absolute)."""
     uri = (cfg or {}).get("tracking_uri") or os.environ.get("MLFLOW_TRACKING_URI")
     return uri or f"sqlite:///{Path.cwd().resolve() / 'mlflow.db'}"
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` URI, else None."""
+    return Path(uri[len("sqlite:///"):]) if uri.startswith("sqlite:///") else None
+
+
+@contextlib.contextmanager
+def store_lock(uri: str) -> Iterator[None]:
+    """Hold an exclusive lock on ``<db>.lock`` beside a sqlite store (other stores: no lock)."""
+    path = sqlite_path(uri)
+    if path is None or path.name in ("", ":memory:"):
+        yield
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path.with_name(path.name + ".lock"), "a")
+    except OSError as e:
+        raise BadInput(f"cannot use the MLflow store '{uri}': {e.strerror or e}") from None
+    with handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def probe(uri: str, timeout: float) -> None:
+    """An ``http(s)`` tracking server must answer (any HTTP status) within ``timeout`` seconds."""
+    if not uri.startswith(("http://", "https://")):
+        return
+    try:
+        urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout).close()
+    except urllib.error.HTTPError:
+        return  # it answered
+    except (OSError, ValueError) as e:
+        reason = getattr(e, "reason", None) or e
+        reason = getattr(reason, "strerror", None) or str(reason) or type(e).__name__
+        raise BadInput(f"cannot reach the MLflow tracking server '{uri}' within {timeout:g} s "
+                       f"(mlflow.timeout_s): {reason}") from None
+    os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", HTTP_RETRIES)
+
+
+def open_store(cfg: Mapping | None, name: str):
+    """``(client, experiment id)`` of the configured store (:func:`tracking_uri`) and experiment ``name``.
+
+    Checked before any work: a server that does not answer within ``mlflow.timeout_s`` (default 5) or a store
+    that cannot be opened is a one-line BadInput. Creation and migration of a sqlite store, and the experiment's
+    get-or-create, run under :func:`store_lock`.
+    """
+    from mlflow.tracking import MlflowClient
+
+    from gtsweep.orchestration.settings import SETTINGS
+
+    uri = tracking_uri(cfg)
+    probe(uri, SETTINGS["mlflow.timeout_s"].check("mlflow.timeout_s", (cfg or {}).get("timeout_s", 5)))
+    with store_lock(uri):
+        try:
+            client = MlflowClient(uri)
+        except Exception as e:
+            reason = (str(e).strip().splitlines() or [type(e).__name__])[0]
+            raise BadInput(f"cannot use the MLflow store '{uri}': {reason}") from None
+        return client, experiment_id(client, name)
 
 
 def experiment_id(client, name: str) -> str:

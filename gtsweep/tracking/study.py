@@ -12,7 +12,7 @@ import sys
 import time
 from typing import Mapping
 
-from gtsweep.tracking.store import experiment_id, flatten, git_commit, tracking_uri
+from gtsweep.tracking.store import flatten, git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import model_development, source_tags
 
 STUDY_TAG, STORAGE_TAG, ROLE_TAG, TRIAL_TAG = "gtsweep.study", "gtsweep.storage", "gtsweep.role", "gtsweep.trial"
@@ -36,12 +36,9 @@ class StudyTracker:
     """Opens (or reopens) the study's run and logs trials as children: :meth:`log_trial`, then :meth:`end`."""
 
     def __init__(self, mlflow_cfg: Mapping, study, target, settings: Mapping, fingerprint: str, config_yaml: str):
-        from mlflow.tracking import MlflowClient
-
         self.uri = tracking_uri(mlflow_cfg)
-        self.client = MlflowClient(self.uri)
         self.settings = settings
-        self.experiment_id = experiment_id(self.client, (mlflow_cfg or {}).get("experiment") or "gtsweep")
+        self.client, self.experiment_id = open_store(mlflow_cfg, (mlflow_cfg or {}).get("experiment") or "gtsweep")
         model_development(self.client, self.experiment_id)
         self.source = source_tags()
         storage = safe_storage(settings["storage"])

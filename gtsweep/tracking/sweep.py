@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Mapping
 
 from gtsweep.core.errors import BadInput
-from gtsweep.tracking.store import experiment_id, flatten, git_commit, tracking_uri
+from gtsweep.tracking.store import flatten, git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (
     cell_names,
     model_development,
@@ -47,19 +47,26 @@ class SweepTracker:
         from mlflow.tracking import MlflowClient
 
         quiet_mlflow()
+        self.cfg = cfg
         self.uri = tracking_uri(cfg)
         self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
         self.output_dir = Path(output_dir)
         self.config_yaml = config_yaml
         self.run_name, self.nest_under = run_name, nest_under  # nest_under: a multirun's run
         mlflow.set_tracking_uri(self.uri)
-        self.client = MlflowClient(self.uri)
+        self.client: MlflowClient | None = None
+        self.experiment_id: str | None = None
         self.parent_id: str | None = None
         self.logged: set[tuple[str, str]] = set()  # (cell key, config hash) already logged under the parent
 
+    def open(self) -> None:
+        """Reach the store and its experiment (before any work: a sweep hook ``on_checked``)."""
+        if self.client is None:
+            self.client, self.experiment_id = open_store(self.cfg, self.experiment_name)
+
     def start(self, grid, dataset_fingerprint: str, versions: Mapping) -> None:
         """Create (or, on resume, reopen) the parent run."""
-        self.experiment_id = experiment_id(self.client, self.experiment_name)
+        self.open()
         model_development(self.client, self.experiment_id)
         self.names = cell_names(grid.cells, several_selectors=len(grid.selectors) > 1)
         self.source = source_tags()
@@ -83,10 +90,15 @@ class SweepTracker:
         self.grid = grid
 
     def _logged_children(self, experiment_id: str) -> set[tuple[str, str]]:
-        """(cell, hash) of the child runs already under the parent (a resumed sweep logs no duplicates)."""
+        """(cell, hash) of the child runs already under the parent (a resumed sweep logs no duplicates). A cell that
+        failed is computed again on resume: its old child run is deleted, the new result logged."""
         runs = self.client.search_runs([experiment_id], f"tags.mlflow.parentRunId = '{self.parent_id}'",
                                        max_results=50000)
-        return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs}
+        for run in runs:
+            if run.data.tags.get(STATUS_TAG) == "error":
+                self.client.delete_run(run.info.run_id)
+        return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs
+                if r.data.tags.get(STATUS_TAG) != "error"}
 
     def log_cell(self, cell, summary: Mapping, rows=None) -> None:
         """One child run: the cell's full method configuration, its schema metrics, steps per strength, NA reason,
@@ -149,11 +161,11 @@ class SweepTracker:
                             for name in schema.ordered(values) if _finite(values[name])]
         return metrics
 
-    def abort(self, reason: str) -> None:
-        """Close the parent run as FAILED with the reason (the sweep stopped on bad input)."""
+    def abort(self, reason: str, status: str = "FAILED") -> None:
+        """Close the parent run as FAILED (the sweep stopped on bad input) or KILLED (interrupted), with why."""
         if self.parent_id is not None:
             self.client.set_tag(self.parent_id, REASON_TAG, reason[:5000])
-            self.client.set_terminated(self.parent_id, "FAILED")
+            self.client.set_terminated(self.parent_id, status)
 
     def end(self, outcome, artifacts: list[Path] = ()) -> None:
         """Log the sweep's totals and files on the parent run and close it."""
@@ -225,14 +237,11 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
 
 def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
     """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
-    from mlflow.tracking import MlflowClient
-
     quiet_mlflow()
-    client = MlflowClient(tracking_uri(cfg))
+    client, experiment = open_store(cfg, (cfg or {}).get("experiment") or "gtsweep")  # locked first use
     if previous is not None:
         client.update_run(previous, status="RUNNING")
         return previous
-    experiment = experiment_id(client, (cfg or {}).get("experiment") or "gtsweep")
     model_development(client, experiment)
     tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.role": "multirun",
             "gtsweep.output_dir": str(sweep_dir), **source_tags()}

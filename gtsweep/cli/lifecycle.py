@@ -1,0 +1,143 @@
+"""A run's life outside the science: its own output directory, and a clean stop on Ctrl-C or SIGTERM.
+
+- Every run gets a directory of its own: ``hydra.run.dir`` / ``hydra.sweep.dir`` default to
+  ``${gtsweep.new_dir:outputs/<date>/<time>}``, which claims the folder with an exclusive ``mkdir`` (``<time>-2``,
+  ``-3``... when a run started in the same second holds it); an explicit directory is locked for the run's life.
+- SIGINT and SIGTERM raise :class:`~gtsweep.core.interrupts.Interrupted` in the main thread; the app then stops the
+  workers, marks its MLflow run KILLED and prints one line with the command that resumes (:func:`exit_interrupted`).
+"""
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import shlex
+import signal
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import Iterator
+
+from omegaconf import OmegaConf
+
+from gtsweep.core import interrupts
+from gtsweep.core.errors import BadInput
+from gtsweep.core.interrupts import Interrupted
+
+LOCK_FILE = ".gtsweep.lock"
+_held: dict = {}  # output directory -> its lock file, held for this process's life
+
+
+def new_dir(base: str) -> str:
+    """``base``, or ``base-2``, ``base-3``... : the first that this process creates (an exclusive claim)."""
+    Path(base).parent.mkdir(parents=True, exist_ok=True)
+    for n in range(1, 1000):
+        candidate = base if n == 1 else f"{base}-{n}"
+        try:
+            os.mkdir(candidate)
+            return candidate
+        except FileExistsError:
+            continue
+    raise BadInput(f"cannot find a free output directory beside {base}")
+
+
+def register_resolvers() -> None:
+    """``${gtsweep.new_dir:...}`` for conf/config.yaml; cached, so every read of the setting gives one folder."""
+    if not OmegaConf.has_resolver("gtsweep.new_dir"):
+        OmegaConf.register_new_resolver("gtsweep.new_dir", new_dir, use_cache=True)
+
+
+def check_writable(directory: str | os.PathLike) -> None:
+    """A one-line BadInput unless ``directory`` can be created and written."""
+    try:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as e:
+        raise BadInput(f"cannot write the output directory {directory}: {e.strerror or e}") from None
+
+
+def output_root(args: list[str], multirun: bool) -> tuple[str, bool]:
+    """The directory a run will write under and whether it was given: ``hydra.run.dir``/``hydra.sweep.dir``, else
+    the default root (``outputs`` or ``multirun``)."""
+    key = "hydra.sweep.dir=" if multirun else "hydra.run.dir="
+    explicit = [a[len(key):] for a in args if a.startswith(key)]
+    return (explicit[-1], True) if explicit else ("multirun" if multirun else "outputs", False)
+
+
+def prepare_output(args: list[str], multirun: bool) -> None:
+    """Before Hydra writes anything: the output directory must be writable, and a given one must be free."""
+    root, explicit = output_root(args, multirun)
+    check_writable(root)
+    if explicit:
+        claim(Path(root))
+
+
+def claim(output_dir: Path) -> None:
+    """Lock ``output_dir`` for this process's life: a second run writing there stops with one line."""
+    key = str(output_dir.resolve())
+    if key in _held:
+        return
+    handle = open(output_dir / LOCK_FILE, "a")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        raise BadInput(f"another gtsweep run is writing to {output_dir}; wait for it or choose another "
+                       f"hydra.run.dir") from None
+    _held[key] = handle
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """SIGINT and SIGTERM raise :class:`Interrupted` (once: later signals are ignored while it cleans up)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.getsignal(s) for s in interrupts.SIGNALS}
+    for s in interrupts.SIGNALS:
+        signal.signal(s, interrupts.on_signal)
+    try:
+        yield
+    finally:
+        for s, old in previous.items():
+            signal.signal(s, old)
+        interrupts.clear()
+
+
+def interruption(error: BaseException) -> Interrupted | None:
+    """The :class:`Interrupted` behind ``error``: Ray's compiled code turns an exception raised by a signal
+    handler during ``ray.wait`` into a ``SystemError`` caused by it."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, Interrupted):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def stop_workers() -> None:
+    """Shut down Ray if this process started or joined it."""
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
+        with contextlib.suppress(Exception):
+            ray.shutdown()
+
+
+def resume_command() -> str:
+    """The command that continues this run: the user's command as typed (``sys.orig_argv``, which gtsweep's
+    rewrite of ``sys.argv`` leaves alone) with ``resume=true``."""
+    typed = list(getattr(sys, "orig_argv", []))
+    if typed[1:3] == ["-m", "gtsweep"]:
+        args = typed[3:]
+    else:  # called from Python (tests, scripts): the arguments Hydra got
+        args = [a for a in sys.argv[1:] if not a.startswith("hydra.searchpath=")]
+    return shlex.join(["python", "-m", "gtsweep", *[a for a in args if not a.startswith("resume=")], "resume=true"])
+
+
+def exit_interrupted(error: Interrupted, kept: str) -> None:
+    """One line on stderr (what is kept, how to continue), exit code 128 + the signal (130 SIGINT, 143 SIGTERM)."""
+    print(f"gtsweep: interrupted by {error.name}; {kept}; to continue: {resume_command()}", file=sys.stderr)
+    sys.exit(128 + error.signum)

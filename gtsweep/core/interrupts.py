@@ -1,0 +1,40 @@
+"""Ctrl-C and SIGTERM as an exception, :class:`Interrupted`, raised in the main thread by :func:`on_signal`.
+
+An exception raised by a signal handler is lost when the handler happens to run inside a ``__del__`` or a weakref
+callback (Python only prints it), so the signal is also recorded: the executors' result loops call
+:func:`raise_pending` and stop there.
+"""
+from __future__ import annotations
+
+import signal
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_pending: list[int] = []
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM arrived: stop, keep what is finished, say how to resume (not an ``Exception``, so that
+    no ``except Exception`` on the way swallows it)."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        self.name = signal.Signals(signum).name
+        super().__init__(f"interrupted by {self.name}")
+
+
+def on_signal(signum, frame) -> None:
+    """The handler: record the signal, ignore later ones (the clean-up must finish), raise :class:`Interrupted`."""
+    for s in SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    _pending.append(signum)
+    raise Interrupted(signum)
+
+
+def raise_pending() -> None:
+    """Raise :class:`Interrupted` if a signal arrived (its first exception may have been lost)."""
+    if _pending:
+        raise Interrupted(_pending[0])
+
+
+def clear() -> None:
+    _pending.clear()
