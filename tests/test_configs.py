@@ -130,6 +130,7 @@ def test_a_users_searchpath_keeps_gtsweeps_entries(user_conf):
     assert "my_star" in cli.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
 
 
+@pytest.mark.slow
 def test_help_lists_the_groups_on_the_search_path(user_conf, tmp_path):
     def help_of(*args):
         done = subprocess.run([sys.executable, "-m", *args, "--help"], cwd=tmp_path, env=cli_env(),

@@ -124,6 +124,7 @@ def test_failed_cells_are_recomputed_on_resume(tmp_path):
     assert store.complete("a", "h")["status"] == "na"
 
 
+@pytest.mark.slow
 def test_a_failed_cell_is_computed_again_and_logged_once(tmp_path, monkeypatch):
     """Resume recomputes a cell that ended in error; MLflow keeps one child per cell, the new one."""
     import dataclasses
@@ -222,11 +223,13 @@ def _stops_at_once(tmp_path, override: str, what: str) -> None:
     assert not list(tmp_path.glob("outputs/*/*/cells")) and not (tmp_path / "data").exists()  # no work done
 
 
+@pytest.mark.slow
 def test_cli_unreachable_tracking_server_stops_before_any_work(tmp_path):
     _stops_at_once(tmp_path, f"mlflow.tracking_uri=http://127.0.0.1:{_closed_port()} mlflow.timeout_s=2",
                    "cannot reach the MLflow tracking server")
 
 
+@pytest.mark.slow
 def test_cli_unreachable_ray_address_stops_before_the_parent_run(tmp_path):
     import mlflow
 
