@@ -142,3 +142,13 @@ def test_every_preset_composes_into_a_grid(preset):
     for name in cfg.detector:  # every preset runs the committed tuned detectors
         tuned_params = OmegaConf.load(tuned / f"{name}.yaml")[name].params
         assert cfg.detector[name].params == tuned_params, name
+
+
+def test_hydra_flag_conflicts_fail_in_one_line(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.argv", ["gtsweep"])
+    with pytest.raises(SystemExit) as exit_info:
+        gtsweep_main(["detector=[orb]", "-m", "--cfg", "job"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gtsweep: error: Only one of") and len(err.splitlines()) == 1, err

@@ -39,5 +39,9 @@ def main(argv: list[str] | None = None) -> None:
             from gtsweep.cli.app import hydra_main
 
             hydra_main()
+        except ValueError as e:  # Hydra refuses a combination of its flags (e.g. -m with --cfg): one line
+            if not str(e).startswith("Only one of"):
+                raise
+            fail(GtsweepError(str(e)))
         except lifecycle.Interrupted as e:
             lifecycle.exit_interrupted(e, "no cell has finished")
