@@ -1,27 +1,33 @@
-"""Sweep overhead: a fixed grid through gtsweep (Ray) against a plain single-process loop of the same OpenCV calls,
-the speed-up from 1 to 2 Ray workers, and the time to re-run a finished sweep (every cell kept).
+"""Sweep overhead against a true floor: the same grid as bare OpenCV calls in one process, through gtsweep serial,
+and through Ray with 1 and 2 workers; then re-running the finished sweep.
 
-    python benchmarks/bench_sweep.py
+    python benchmarks/bench_sweep.py            # 640 x 480 views (the embedded default)
+    python benchmarks/bench_sweep.py --survey   # also the grid at the survey's 1288 x 964
 
-Prints figures; no pass/fail. Uses the embedded data set, 4 textures x (4 incremental + 4 absolute) pairs,
-4 detectors x 4 descriptors: 64 pairs, 32 cells.
+The floor is what a hand-written script does for each pair: ``detect``, keep the 1000 strongest keypoints,
+``compute``, ``BFMatcher.knnMatch(k=2)`` + ratio 0.7, ``cv2.estimateAffinePartial2D(RANSAC, 3 px, 2000 iterations)``
+— no metrics, no cache, no result files. gtsweep computes the survey's metrics on top (repeatability, correct
+matches, pose error), so part of its time is work the floor does not do. Prints figures; no pass/fail. Grid: 4
+textures x (4 incremental + 4 absolute) pairs, 4 detectors x 4 descriptors (32 cells, 3 of them NA).
 """
 from __future__ import annotations
 
+import argparse
 import shutil
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
+
 from gtsweep.cli.overrides import compose_config
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.grid import build_grid
 from gtsweep.orchestration.sweep import run_sweep
-from gtsweep.stages.describe import describe, descriptor_params
-from gtsweep.stages.detect import detect
-from gtsweep.stages.match import match_descriptors
-from gtsweep.stages.pose import estimate_pose
-from gtsweep.stages.select import select_nms
+from gtsweep.stages import keypoints as kp
+from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
+from gtsweep.stages.detect import DETECTORS
 
 GRID = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,orb,sift]", "selector=[nms]",
         "transform=[incremental,absolute]", "experiment=pose", "mlflow.enabled=false", "runner.progress=false",
@@ -29,61 +35,95 @@ GRID = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,orb,sift]"
         "dataset.n_absolute=4", "runner.shard_size=2"]
 
 
-def compose_cfg(extra: list[str]):
-    return compose_config(GRID + extra)
-
-
-def plain_loop(cfg) -> float:
-    """The same detections and pairings, one process, no cache, no result files."""
+def floor(cfg, threads: int) -> float:
+    """The bare-OpenCV loop over the grid's applicable pairings, OpenCV on ``threads`` threads (-1: its default,
+    as gtsweep's serial backend; 1: as each Ray task)."""
     grid, dataset = build_grid(cfg), load_dataset(cfg.dataset)
-    pairs = [p for kind in ("incremental", "absolute") for p in dataset.pairs(kind)]
-    images = [(p.reference.load(), p.test.load()) for p in pairs]
+    pairs = [(p.reference.load(), p.test.load()) for kind in ("incremental", "absolute") for p in dataset.pairs(kind)]
+    cv2.setNumThreads(threads)
     start = time.perf_counter()
     for detector, dcfg in grid.detectors.items():
-        keypoints = [[select_nms(detect(im, detector, **dcfg["params"]), im.shape, 1000) for im in pair]
-                     for pair in images]
+        det = DETECTORS.get(detector).build(dcfg["params"])
+        found = []
+        for pair in pairs:
+            strongest = []
+            for image in pair:
+                keypoints = det.detect(image, None)
+                keypoints = sorted(keypoints, key=lambda k: -k.response)[:1000]
+                strongest.append(keypoints)
+            found.append(strongest)
         for descriptor, scfg in grid.descriptors.items():
             if any(c.na_reason for c in grid.cells if (c.detector, c.descriptor) == (detector, descriptor)):
                 continue
-            params = descriptor_params(scfg, detector)
-            for (ref, test), (kr, kt) in zip(images, keypoints):
-                kr, dr = describe(ref, kr, descriptor, detector, **params)
-                kt, dt = describe(test, kt, descriptor, detector, **params)
-                m = match_descriptors(dt, dr, "hamming" if dr.dtype.kind == "u" else "l2")
-                estimate_pose(kt[m[:, 0], :2], kr[m[:, 1], :2])
+            spec = DESCRIPTORS.get(descriptor)
+            extractor = spec.build(descriptor_params(scfg, detector))
+            matcher = cv2.BFMatcher(cv2.NORM_HAMMING if spec.norm == "hamming" else cv2.NORM_L2)
+            for (ref, test), (kr, kt) in zip(pairs, found):
+                if detector != descriptor:  # as gtsweep does for foreign keypoints (OpenCV 5 would misread them)
+                    kr, kt = (kp.to_keypoints(_foreign(kp.to_array(k))) for k in (kr, kt))
+                kr, dr = extractor.compute(ref, kr)
+                kt, dt = extractor.compute(test, kt)
+                if dr is None or dt is None or len(dr) < 2:
+                    continue
+                good = [m[0] for m in matcher.knnMatch(dt, dr, k=2) if len(m) == 2 and m[0].distance < 0.7 * m[1].distance]
+                if len(good) >= 2:
+                    src = np.float32([kt[m.queryIdx].pt for m in good])
+                    dst = np.float32([kr[m.trainIdx].pt for m in good])
+                    cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0, maxIters=2000)
+    cv2.setNumThreads(-1)
     return time.perf_counter() - start
 
 
-def timed_sweep(cfg, out: Path) -> tuple[float, object]:
+def _foreign(array: np.ndarray) -> np.ndarray:
+    array[:, kp.OCTAVE] = 0
+    array[array[:, kp.ANGLE] < 0, kp.ANGLE] = 0.0
+    return array
+
+
+def timed_sweep(cfg, out: Path):
     start = time.perf_counter()
     outcome = run_sweep(cfg, out)
     return time.perf_counter() - start, outcome
 
 
-def main() -> None:
+def bench(label: str, extra: list[str]) -> None:
     import ray
 
     work = Path(tempfile.mkdtemp(prefix="gtsweep-bench-"))
     try:
-        cfg1 = compose_cfg([f"cache.dir={work}/cache1", "runner.num_cpus=1"])
-        load_dataset(cfg1.dataset)  # render the data set once, outside the timings
-        loop = plain_loop(cfg1)
-        print(f"plain single-process loop:              {loop:7.2f} s")
-        t1, outcome = timed_sweep(cfg1, work / "run1")
-        print(f"gtsweep, Ray with 1 worker (cold cache): {t1:7.2f} s  (ratio to the loop {t1 / loop:.2f}; "
-              f"includes ~5 s Ray start; {len(outcome.summaries)} cells)")
+        compose = lambda more: compose_config(GRID + extra + more)  # noqa: E731
+        cfg = compose([f"cache.dir={work}/c0", "runner.backend=serial"])
+        load_dataset(cfg.dataset)  # render the data set once, outside the timings
+        bare = floor(cfg, -1)
+        print(f"[{label}] bare OpenCV loop (the floor):       {bare:7.2f} s  (OpenCV's default threads)")
+        serial, outcome = timed_sweep(cfg, work / "serial")
+        print(f"[{label}] gtsweep serial (cold cache):        {serial:7.2f} s  ({serial / bare:.2f}x the floor; "
+              f"{len(outcome.summaries)} cells)")
+        bare1 = floor(cfg, 1)
+        print(f"[{label}] bare OpenCV loop, 1 thread:         {bare1:7.2f} s")
+        one, _ = timed_sweep(compose([f"cache.dir={work}/c1", "runner.num_cpus=1"]), work / "ray1")
+        print(f"[{label}] gtsweep Ray, 1 worker (cold):       {one:7.2f} s  ({one / bare1:.2f}x the 1-thread floor; "
+              f"includes Ray's start)")
         ray.shutdown()
-        cfg2 = compose_cfg([f"cache.dir={work}/cache2", "runner.num_cpus=2"])
-        t2, _ = timed_sweep(cfg2, work / "run2")
-        print(f"gtsweep, Ray with 2 workers (cold):      {t2:7.2f} s  (speed-up from 1 to 2 workers {t1 / t2:.2f})")
-        t3, outcome = timed_sweep(cfg2, work / "run2")
-        print(f"re-running the finished sweep:           {t3:7.2f} s  ({outcome.resumed} cells kept)")
-        t4, outcome = timed_sweep(cfg2, work / "run3")
-        print(f"same grid, new output dir, warm cache:   {t4:7.2f} s  ({outcome.stats.cache_hits} cache hits, "
-              f"{outcome.stats.cache_misses} misses)")
+        cfg2 = compose([f"cache.dir={work}/c2", "runner.num_cpus=2"])
+        two, _ = timed_sweep(cfg2, work / "ray2")
+        print(f"[{label}] gtsweep Ray, 2 workers (cold):      {two:7.2f} s  ({two / bare:.2f}x the floor; "
+              f"{one / two:.2f}x faster than 1 worker)")
+        again, outcome = timed_sweep(cfg2, work / "ray2")
+        print(f"[{label}] re-running the finished sweep:      {again:7.2f} s  ({again / two:.1%} of its first run; "
+              f"{outcome.resumed} cells kept)")
         ray.shutdown()
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--survey", action="store_true", help="also the grid at the survey's 1288 x 964 views")
+    args = parser.parse_args()
+    bench("640x480", [])
+    if args.survey:
+        bench("1288x964", ["dataset.view_size=[1288,964]"])
 
 
 if __name__ == "__main__":
