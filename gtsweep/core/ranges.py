@@ -8,8 +8,21 @@ from typing import Any, Iterable
 from gtsweep.core.errors import BadInput
 
 
+class _Rule:
+    """What every rule does with its ``admits`` and ``describe``: check a value, or say in one line why not."""
+
+    def detail(self, value: Any) -> str:
+        return ""
+
+    def check(self, name: str, value: Any) -> Any:
+        """``value`` if admitted, else a one-line BadInput naming the setting and what it admits."""
+        if not self.admits(value):
+            raise BadInput(f"{name} must be {self.describe()}, got {value!r}{self.detail(value)}")
+        return value
+
+
 @dataclass(frozen=True)
-class Range:
+class Range(_Rule):
     """Numbers in ``[low, high]`` (either end open, either end None for unbounded); ``integer`` admits only ints;
     ``optional`` admits None (the setting's "off" or "all")."""
 
@@ -38,15 +51,9 @@ class Range:
             return False
         return self.high is None or (value < self.high if self.high_open else value <= self.high)
 
-    def check(self, name: str, value: Any) -> Any:
-        """``value`` if admitted, else a one-line BadInput naming the setting and what it admits."""
-        if not self.admits(value):
-            raise BadInput(f"{name} must be {self.describe()}, got {value!r}")
-        return value
-
 
 @dataclass(frozen=True)
-class Choice:
+class Choice(_Rule):
     """One of a fixed set of values."""
 
     options: tuple
@@ -58,14 +65,9 @@ class Choice:
     def admits(self, value: Any) -> bool:
         return (value is None and self.optional) or value in self.options
 
-    def check(self, name: str, value: Any) -> Any:
-        if not self.admits(value):
-            raise BadInput(f"{name} must be {self.describe()}, got {value!r}")
-        return value
-
 
 @dataclass(frozen=True)
-class ListOf:
+class ListOf(_Rule):
     """A non-empty list whose items are admitted by ``item`` (None admitted when ``optional``)."""
 
     item: Range | Choice
@@ -79,12 +81,9 @@ class ListOf:
             return self.optional
         return isinstance(value, (list, tuple)) and len(value) > 0 and all(self.item.admits(v) for v in value)
 
-    def check(self, name: str, value: Any) -> Any:
-        if not self.admits(value):
-            bad = [v for v in value if not self.item.admits(v)] if isinstance(value, (list, tuple)) else []
-            detail = f" ({bad[0]!r} is not {self.item.describe()})" if bad else ""
-            raise BadInput(f"{name} must be {self.describe()}, got {value!r}{detail}")
-        return value
+    def detail(self, value: Any) -> str:
+        bad = [v for v in value if not self.item.admits(v)] if isinstance(value, (list, tuple)) else []
+        return f" ({bad[0]!r} is not {self.item.describe()})" if bad else ""
 
 
 def check_all(values: dict, rules: dict, prefix: str = "") -> None:
