@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from gtsweep.core.errors import UnknownMethod
+from gtsweep.stages import pose
 from gtsweep.stages.pose import estimate_pose
 
 
@@ -64,3 +65,22 @@ def test_too_few_or_degenerate_matches_give_none():
 def test_unknown_model():
     with pytest.raises(UnknownMethod, match="pose model"):
         estimate_pose(np.zeros((3, 2)), np.zeros((3, 2)), model="affine")
+
+
+def _direct_counts(a, b, zt, zr, threshold):
+    """The definition: one reprojection error per hypothesis and match."""
+    return np.count_nonzero(np.abs(a[:, None] * zt[None, :] + b[:, None] - zr[None, :]) < threshold, axis=1)
+
+
+def test_matrix_product_scoring_equals_direct_errors_even_on_the_threshold():
+    rng = np.random.default_rng(3)
+    zt = rng.uniform(0, 1288, 300) + 1j * rng.uniform(0, 964, 300)
+    a = np.exp(1j * rng.uniform(-np.pi, np.pi, 500)) * rng.uniform(0.9, 1.1, 500)
+    b = rng.uniform(-500, 500, 500) + 1j * rng.uniform(-500, 500, 500)
+    zr = a[0] * zt + b[0] + rng.normal(0, 2, 300) + 1j * rng.normal(0, 2, 300)
+    # points exactly 3 px from hypothesis 1's prediction (not counted: error < 3 is strict), and a huge factor
+    zr[:100] = a[1] * zt[:100] + b[1] + 3.0 * np.exp(1j * rng.uniform(0, 2 * np.pi, 100))
+    a[2], b[2] = 1e9, 0.0
+    counts = pose._inlier_counts(a, b, zt, zr, 3.0)
+    np.testing.assert_array_equal(counts, _direct_counts(a, b, zt, zr, 3.0))
+    assert counts[0] > 100 and 0 < counts[1] <= 100
