@@ -26,27 +26,27 @@ SERIAL = "runner.backend=serial"
 
 def _count_detections(monkeypatch) -> list:
     calls = []
-    original = cache.detect_and_select
+    original = cache.detect_raw
 
     def counting(image, mask, detector, *args):
         calls.append((image.tobytes(), None if mask is None else mask.tobytes(), detector, *map(repr, args)))
         return original(image, mask, detector, *args)
 
-    monkeypatch.setattr(cache, "detect_and_select", counting)
+    monkeypatch.setattr(cache, "detect_raw", counting)
     return calls
 
 
 @pytest.mark.slow
 def test_detection_is_computed_once_and_cached(tmp_path, monkeypatch):
     calls = _count_detections(monkeypatch)
-    grid = ["detector=[akaze,censure]", "descriptor=[brief,latch,orb,sift]", "selector=[nms]",
+    grid = ["detector=[akaze,censure]", "descriptor=[brief,latch,orb,sift]", "selector=[nms,none]",
             "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "mlflow.enabled=false"]
     cfg = compose_config(tiny_overrides(tmp_path, SERIAL, *grid))
     first = run_sweep(cfg, tmp_path / "run1")
-    # every (image, mask, detector, selector) detected exactly once, however many descriptors use it
-    assert len(calls) == len(set(calls)) == first.stats.cache_misses > 0
+    # every (image, mask, detector) detected exactly once, however many selectors and descriptors use it
+    assert len(calls) == len(set(calls)) > 0 and first.stats.cache_misses == 2 * len(calls)
     assert all(s["status"] == "ok" for s in first.summaries)
-    assert len(first.summaries) == 2 * 4 * 2
+    assert len(first.summaries) == 2 * 2 * 4 * 2
     calls.clear()
     second = run_sweep(cfg, tmp_path / "run2")  # same detections, new output directory
     assert calls == [] and second.stats.cache_misses == 0 and second.stats.cache_hits >= first.stats.cache_misses

@@ -21,12 +21,24 @@ from gtsweep.stages.pose import estimate_pose
 from gtsweep.stages.select import select
 
 
+def detect_raw(image, mask, detector: str, detector_params: dict):
+    """The detector's own keypoints in ``image`` (inside ``mask``): ``(keypoints, n_detected, seconds)``."""
+    found, seconds = detect_timed(image, detector, mask, **detector_params)
+    return found, len(found), seconds
+
+
+def select_detected(raw, image_shape, selector: str, selector_params: dict):
+    """Select from a :func:`detect_raw` result: ``(keypoints, n_detected, detect + select seconds)``."""
+    found, n_detected, seconds = raw
+    start = time.perf_counter()
+    selected = select(found, selector, image_shape, **selector_params)
+    return selected, n_detected, seconds + (time.perf_counter() - start)
+
+
 def detect_and_select(image, mask, detector: str, detector_params: dict, selector: str, selector_params: dict):
     """Detect in ``image`` (inside ``mask``) and select; returns ``(keypoints, n_detected, seconds)``."""
-    found, seconds = detect_timed(image, detector, mask, **detector_params)
-    start = time.perf_counter()
-    selected = select(found, selector, image.shape, **selector_params)
-    return selected, len(found), seconds + (time.perf_counter() - start)
+    return select_detected(detect_raw(image, mask, detector, detector_params), image.shape, selector,
+                           selector_params)
 
 
 def detection_metrics(view: ViewPair, ref_kps, test_kps, iou_threshold=0.5, min_keypoints=100) -> dict:
