@@ -22,7 +22,9 @@ import cv2
 import numpy as np
 
 from gtsweep.cli.overrides import compose_config
+from gtsweep.core.memory import PeakMemory
 from gtsweep.datasets import load_dataset
+from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import build_grid
 from gtsweep.orchestration.sweep import run_sweep
 from gtsweep.stages import keypoints as kp
@@ -81,9 +83,30 @@ def _foreign(array: np.ndarray) -> np.ndarray:
 
 
 def timed_sweep(cfg, out: Path):
+    """Run the sweep; its wall time, outcome, and the peak memory of the driver and each Ray worker."""
     start = time.perf_counter()
-    outcome = run_sweep(cfg, out)
+    with PeakMemory() as memory:
+        outcome = run_sweep(cfg, out)
+    print(f"    {memory.line()}; {outcome.stats.detection_tasks} detection + {outcome.stats.pairing_tasks} pairing tasks")
     return time.perf_counter() - start, outcome
+
+
+def _noop(value):
+    return value
+
+
+def task_overhead(runner_cfg: dict, n: int = 400) -> float:
+    """Seconds per task of gtsweep's Ray executor on tasks that do nothing (submit, run, collect), Ray already up."""
+    executor = make_executor(runner_cfg)
+    payload = executor.put(np.zeros(16))
+    for i in range(20):
+        executor.submit(_noop, payload, tag=i)
+    list(executor.results())
+    start = time.perf_counter()
+    for i in range(n):
+        executor.submit(_noop, payload, tag=i)
+    list(executor.results())
+    return (time.perf_counter() - start) / n
 
 
 def bench(label: str, extra: list[str]) -> None:
@@ -106,9 +129,13 @@ def bench(label: str, extra: list[str]) -> None:
               f"includes Ray's start)")
         ray.shutdown()
         cfg2 = compose([f"cache.dir={work}/c2", "runner.num_cpus=2"])
-        two, _ = timed_sweep(cfg2, work / "ray2")
+        two, outcome = timed_sweep(cfg2, work / "ray2")
         print(f"[{label}] gtsweep Ray, 2 workers (cold):      {two:7.2f} s  ({two / bare:.2f}x the floor; "
               f"{one / two:.2f}x faster than 1 worker)")
+        per_task = task_overhead(dict(cfg2.runner))
+        n_tasks = outcome.stats.detection_tasks + outcome.stats.pairing_tasks
+        print(f"[{label}] Ray's cost per task (no-op tasks):  {per_task * 1e3:7.2f} ms  ({n_tasks} tasks: "
+              f"{n_tasks * per_task:.2f} s of work, {n_tasks * per_task / 2 / two:.1%} of the 2-worker wall time)")
         again, outcome = timed_sweep(cfg2, work / "ray2")
         print(f"[{label}] re-running the finished sweep:      {again:7.2f} s  ({again / two:.1%} of its first run; "
               f"{outcome.resumed} cells kept)")

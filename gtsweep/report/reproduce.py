@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -18,6 +17,7 @@ import time
 from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
+from gtsweep.core.memory import tree_rss
 from gtsweep.core.paths import PROJECT_DIR
 from gtsweep.report.findings import check_findings
 from gtsweep.report.tables import build_tables, frame, load_summaries
@@ -34,27 +34,6 @@ SIZES = {
 PRESET_OVERRIDES = {"table2_selectors": ["dataset.n_synthetic=1"]}
 
 
-def _tree_rss(pid: int) -> int:
-    """Resident bytes of ``pid`` and all its descendants (Linux /proc)."""
-    children: dict[int, list[int]] = {}
-    rss: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            children.setdefault(int(fields[1]), []).append(int(entry.name))
-            rss[int(entry.name)] = int(fields[21]) * os.sysconf("SC_PAGE_SIZE")
-        except (OSError, IndexError, ValueError):
-            continue
-    total, stack = 0, [pid]
-    while stack:
-        p = stack.pop()
-        total += rss.get(p, 0)
-        stack += children.get(p, [])
-    return total
-
-
 def run_preset(preset: str, overrides: list[str], work: Path, uri: str) -> dict:
     """Run one preset in its own process; returns its measurements."""
     out = work / preset
@@ -64,7 +43,7 @@ def run_preset(preset: str, overrides: list[str], work: Path, uri: str) -> dict:
     with open(work / f"{preset}.log", "w") as log:
         process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, cwd=work)
         while process.poll() is None:
-            peak = max(peak, _tree_rss(process.pid))
+            peak = max(peak, sum(tree_rss(process.pid).values()))
             time.sleep(0.5)
     seconds = time.perf_counter() - start
     if process.returncode != 0:
