@@ -5,7 +5,8 @@ import pytest
 from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.orchestration.sweep import run_sweep
-from gtsweep.report.tables import build_tables, fmt, main, write_report
+from gtsweep.report.output import main, write_report
+from gtsweep.report.tables import build_tables, fmt
 
 SERIAL = ["runner.backend=serial", "mlflow.enabled=false"]
 
