@@ -93,13 +93,14 @@ def estimate(cells: pd.DataFrame, metric: str, views: Views | None, where: Mappi
 
 
 def compare(a: pd.DataFrame, b: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
-            seed: int = 0) -> statistics.Comparison | None:
+            where_b: Mapping | None = None, seed: int = 0) -> statistics.Comparison | None:
     """Paired test of entry A against entry B on the images both have: an exact McNemar test for a success rate
     with one view per pair on one transform (survey Tables 4, 5, 7), else a permutation test swapping A and B
-    within images (:func:`~gtsweep.evaluation.statistics.clustered_difference`). None without per-view rows."""
+    within images (:func:`~gtsweep.evaluation.statistics.clustered_difference`). None without per-view rows.
+    ``where`` selects A's views (and B's, unless ``where_b`` does), e.g. a reference feature count."""
     if not views or metric not in schema.METRICS:
         return None
-    long_a, long_b = _long(a, metric, views, where), _long(b, metric, views, where)
+    long_a, long_b = _long(a, metric, views, where), _long(b, metric, views, where if where_b is None else where_b)
     if long_a is None or long_b is None:
         return None
     clusters = sorted(set(long_a["cluster"]) & set(long_b["cluster"]))
