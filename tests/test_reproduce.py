@@ -1,39 +1,12 @@
 """The survey findings as paired tests on hand-built per-view rows (known verdicts, tied data inconclusive), the
 survey's own tables (no per-view rows: not testable, numbers shown) and the REPRODUCTION.md writer on fake runs."""
-import json
-import math
-
-import numpy as np
 import pandas as pd
 import pytest
+from report_fakes import fake_cell
 
-from gtsweep.evaluation.schema import METRICS
-from gtsweep.orchestration.results import ResultStore, summarize
 from gtsweep.report.findings import FINDINGS, check_findings
-from gtsweep.report.tables import frame, load_summaries, paper
 from gtsweep.report.samples import load_views
-
-
-def fake_cell(directory, detector, descriptor, transform, outcomes, selector="nms", strengths=(None,),
-              textures=("gravel",), extra=None):
-    """Write one cell's per-view rows and summary: ``outcomes`` per pair (or image x strength) 0/1 success."""
-    rows = []
-    per_texture = len(outcomes) // len(textures)
-    for i, outcome in enumerate(outcomes):
-        texture = textures[i // per_texture]
-        image, strength = i // len(strengths), strengths[i % len(strengths)]
-        view = f"{texture}/{image:03d}" + ("" if strength is None else f"@{strength}")
-        rows.append({"view": view, "image": f"{texture}/{image:03d}", "texture": texture,
-                     "strength": math.nan if strength is None else float(strength), "pose_success": float(outcome),
-                     **(extra(i) if extra else {})})
-    rows = pd.DataFrame(rows)
-    key = f"{detector}__{selector}__{descriptor or 'none'}__{transform}"
-    experiment = "pose" if descriptor else "detection"
-    summary = {"key": key, "methods": {"detector": detector, "selector": selector, "descriptor": descriptor,
-                                       "transform": transform}, "status": "ok", "experiment": experiment,
-               **summarize(rows, experiment)}
-    ResultStore(directory).write_cell(key, summary, rows)
-    return key
+from gtsweep.report.tables import frame, load_summaries, paper
 
 
 def _run(directory):

@@ -110,7 +110,7 @@ def mcnemar_exact(a_success, b_success) -> Comparison:
     a, b_ = a[keep] > 0.5, b_[keep] > 0.5
     only_a, only_b = int(np.sum(a & ~b_)), int(np.sum(~a & b_))
     p = 1.0 if only_a + only_b == 0 else float(stats.binomtest(only_a, only_a + only_b, 0.5).pvalue)
-    n = int(len(a))
+    n = len(a)
     return Comparison("exact McNemar", (only_a - only_b) / n if n else math.nan, p, n=n)
 
 

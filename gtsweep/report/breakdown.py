@@ -89,8 +89,10 @@ def strength_table(summaries: list[dict], views: Views | None, name: str = "synt
     if part.empty or not views:
         return None
     by_cell = {s.get("key"): s for s in summaries}
-    metrics = schema.ordered({m for s in summaries if s.get("key") in set(part["key"])
-                              for m in schema.CURVES[schema.experiment_of(s)]})
+    metrics = [m for m in schema.ordered({m for s in summaries if s.get("key") in set(part["key"])
+                                          for m in schema.CURVES[schema.experiment_of(s)]})
+               if any(schema.aggregable(schema.METRICS[m], schema.with_derived(views.get(k, pd.DataFrame())))
+                      for k in part["key"])]
     table = Table(name, f"Synthetic transforms per type and strength{note}: ours ±half-width of the 95 % interval",
                   pd.DataFrame())
     out = []
@@ -104,7 +106,7 @@ def strength_table(summaries: list[dict], views: Views | None, name: str = "synt
         for strength in sorted(pd.to_numeric(rows["strength"], errors="coerce").dropna().unique()):
             record = {"pairing": label, "transform": cell["transform"], "strength": f"{strength:g}"}
             for metric in metrics:
-                if metric in rows or schema.METRICS[metric].of:
+                if schema.aggregable(schema.METRICS[metric], schema.with_derived(rows)):
                     record[metric] = table.show(label, f"{cell['transform']} {strength:g} {metric}",
                                                 part.loc[[index]], metric, None, schema.METRICS[metric].digits,
                                                 views, {"strength": float(strength)})

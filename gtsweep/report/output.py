@@ -12,9 +12,22 @@ import sys
 from pathlib import Path
 
 from gtsweep.core.errors import GtsweepError
-from gtsweep.report.breakdown import strength_table, texture_summaries, texture_views, textures
+from gtsweep.report.breakdown import (
+    strength_table,
+    texture_summaries,
+    texture_views,
+    textures,
+)
 from gtsweep.report.samples import Views, load_views
-from gtsweep.report.tables import ALPHA, BY, Table, build_tables, load_summaries, table_cells, write_tables
+from gtsweep.report.tables import (
+    ALPHA,
+    BY,
+    Table,
+    build_tables,
+    load_summaries,
+    table_cells,
+    write_tables,
+)
 
 
 def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots: bool, alpha: float,

@@ -15,9 +15,9 @@ interval.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -65,7 +65,7 @@ def _matrices(long: pd.DataFrame, clusters=None, strata=None) -> tuple[np.ndarra
                              fill_value=0.0)
     clusters = sorted(long["cluster"].unique()) if clusters is None else clusters
     strata = sorted(long["stratum"].unique()) if strata is None else strata
-    pick = lambda name: table[name].reindex(index=clusters, columns=strata, fill_value=0.0).to_numpy(float)  # noqa
+    pick = lambda name: table[name].reindex(index=clusters, columns=strata, fill_value=0.0).to_numpy(float)
     return pick("sum"), pick("count")
 
 
