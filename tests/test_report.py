@@ -88,7 +88,8 @@ def test_fmt():
 
 def test_fmt_with_interval():
     # ours ± half-width of [0.80, 0.90] (paper)
-    assert fmt(0.85, 0.93, 2, 0.80, 0.90) == "0.85 ±0.05 (0.93)" and fmt(287.0, 534, 0, 155.0, 419.0) == "287 ±132 (534)"
+    assert fmt(0.85, 0.93, 2, 0.80, 0.90) == "0.85 ±0.05 (0.93)"
+    assert fmt(287.0, 534, 0, 155.0, 419.0) == "287 ±132 (534)"
     assert fmt(float("nan"), 0.9, 2, 0.1, 0.2) == "NA (0.90)"
 
 

@@ -1,8 +1,9 @@
 """One table and one report across the jobs of a multirun (``python -m gtsweep -m seed=0,1 ...``).
 
 Jobs that differ only in ``seed`` are repeats of one setting: each cell gets the mean of its metrics over the
-repeats (:func:`~gtsweep.report.breakdown.mean_summary`), their spread (sample standard deviation) and the number of repeats. Jobs that differ in anything else are
-separate settings (named by the overrides that differ, e.g. ``selector.nms.params.n=500``), side by side.
+repeats (:func:`~gtsweep.report.breakdown.mean_summary`), their spread (sample standard deviation) and the number
+of repeats. Jobs that differ in anything else are separate settings (named by the overrides that differ, e.g.
+``selector.nms.params.n=500``), side by side.
 Written into ``<sweep dir>/combined/``::
 
     all_results.csv  every cell of every job: setting, seed, job, methods, status, metrics (not results.csv:

@@ -4,8 +4,8 @@ Each preset of ``sweeps/`` runs as its own ``python -m gtsweep`` process at a ch
 memory (resident memory of its whole process tree, sampled), keypoint cache hit rate and number of MLflow runs
 are recorded. The survey's tables are rebuilt beside the paper's numbers, and each of the survey's findings is
 judged with a paired test on the same images or pairs (holds, fails or inconclusive at ``--alpha``); each table
-names the pairings statistically tied with its best. Hand-written explanations of differences are read from ``docs/reproduction_notes.md``
-when it exists.
+names the pairings statistically tied with its best. Hand-written explanations of differences are read from
+``docs/reproduction_notes.md`` when it exists.
 """
 from __future__ import annotations
 

@@ -132,7 +132,8 @@ class Ties:
         if not self.best:
             return ""
         if not self.tests:
-            return f"best {self.metric}: {self.best} {self.best_value:.2f}; no per-view rows to test ties"
+            why = "no per-view rows to test ties" if self.untested else "the only entry"
+            return f"best {self.metric}: {self.best} {self.best_value:.2f}; {why}"
         tied = f"{len(self.tied)} tied with it ({', '.join(self.tied)})" if self.tied else "none tied with it"
         return (f"best {self.metric}: {self.best} {self.best_value:.2f}; {tied} (paired test vs the best, "
                 f"alpha = {self.alpha:g}; of {len(self.tests)} tested)")
