@@ -179,3 +179,35 @@ def test_same_seed_same_intervals_on_serial_and_ray_and_from_mlflow(tmp_path, mo
         ours = pd.read_csv(tmp_path / "from_mlflow" / table)
         theirs = pd.read_csv(tmp_path / "serial" / "report" / table)
         assert np.allclose(ours[["ours", "ci_low", "ci_high"]], theirs[["ours", "ci_low", "ci_high"]], equal_nan=True)
+
+
+def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
+    """Two repeats (seeds) of a sweep: each repeat is a stratum, images are matched across; Table 6 averages two
+    transforms, and its interval comes from resampling images, not from averaging the cells' intervals."""
+    import json
+
+    from report_fakes import fake_cell
+
+    from gtsweep.report.combine import combine
+
+    for job, sift in (("0", [1] * 15 + [0] * 5), ("1", [1] * 10 + [0] * 10)):
+        directory = tmp_path / job
+        directory.mkdir()
+        (directory / "sweep.json").write_text(json.dumps({"overrides": [f"seed={job}"]}))
+        fake_cell(directory, "sift", "sift", "incremental", sift)
+        fake_cell(directory, "akaze", "brief", "incremental", [1] * 20)
+        fake_cell(directory, "sift", "sift", "rotation", [1, 1] * 4 + [1, 0] * 4, strengths=(0, 90))
+        fake_cell(directory, "sift", "sift", "noise", [1, 0] * 8, strengths=(0, 90))
+    combine(tmp_path, plots=False)
+    report = tmp_path / "combined" / "report"
+    table4 = (report / "table4_incremental.md").read_text()
+    # SIFT-SIFT: (15 + 10) / 40 = 0.62; AKAZE-BRIEF 40/40: a bootstrap has nothing to resample, so Wilson with one
+    # trial per pair (20/20: half-width 0.08); the 5 + 10 discordant pairs are all AKAZE's: not tied
+    assert "| AKAZE | 1.00 ±0.08 (0.85) |  |" in table4 and "| SIFT |  | 0.62 ±" in table4
+    assert "none tied with it" in table4
+    values = pd.read_csv(report / "table6_pairings_values.csv")
+    success = values[values["metric"] == "pose_success"].iloc[0]
+    # rotation 12/16 = 0.75, noise 8/16 = 0.5: the mean over transforms 0.625; averaging the cells' Wilson
+    # intervals would give [0.393, 0.809]
+    assert success["ours"] == pytest.approx(0.625)
+    assert success["ci_low"] < 0.625 < success["ci_high"] and success["ci_low"] != pytest.approx(0.393, abs=0.01)

@@ -9,7 +9,8 @@ texture + image or pair id), never by averaging intervals. Two entries are match
 
 An entry of one cell shows the cell's own ``<metric>_ci_low/_ci_high`` (the numbers of results.csv and MLflow:
 Wilson for a rate, a bootstrap over views otherwise); an entry over several cells, strengths or repeats a Wilson
-interval for a success rate with one view per pair, else the bootstrap over images; without per-view rows no
+interval for a success rate with one view per pair, else the bootstrap over images (a rate of exactly 0 or 1
+leaves a bootstrap nothing to resample: Wilson with one trial per image instead); without per-view rows no
 interval.
 """
 from __future__ import annotations
@@ -83,6 +84,9 @@ def estimate(cells: pd.DataFrame, metric: str, views: Views | None, where: Mappi
             return value, math.nan, math.nan
         if declared.aggregation == "rate" and sums.shape[1] == 1 and counts.max() <= 1:  # one view per pair
             return (value, *statistics.wilson_interval(int(sums.sum()), int(counts.sum())))
+        if declared.aggregation == "rate" and value in (0.0, 1.0):  # no variation for a bootstrap to resample:
+            clusters = int((counts.sum(axis=1) > 0).sum())  # Wilson with one trial per image (conservative)
+            return (value, *statistics.wilson_interval(int(round(value * clusters)), clusters))
         return (value, *statistics.clustered_interval(sums, counts, seed=seed))
     values = pd.to_numeric(cells[metric], errors="coerce") if metric in cells else pd.Series(dtype=float)
     value = float(values.mean()) if values.notna().any() else math.nan
