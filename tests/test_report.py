@@ -211,3 +211,20 @@ def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
     # intervals would give [0.393, 0.809]
     assert success["ours"] == pytest.approx(0.625)
     assert success["ci_low"] < 0.625 < success["ci_high"] and success["ci_low"] != pytest.approx(0.393, abs=0.01)
+
+
+@pytest.mark.slow
+def test_plots_per_texture_with_interval_bands(tmp_path):
+    run = _fake_run(tmp_path / "run")
+    assert main([str(run), "--by", "texture"]) == 0
+    for folder in (run / "report", run / "report" / "by_texture" / "gravel"):
+        assert {"pose_success_vs_rotation.png", "success_heatmap_incremental.png"} <= {p.name for p in
+                                                                                       folder.glob("*.png")}
+    from gtsweep.report.plots import _band
+    from gtsweep.report.samples import load_views
+    from gtsweep.report.tables import load_summaries
+
+    cell = next(s for s in load_summaries(run) if s["key"] == "akaze__nms__brief__rotation")
+    # AKAZE-BRIEF on rotation: 8/8 at 0 (Wilson [0.676, 1]), 0/8 at 90 ([0, 0.324])
+    lows, highs = _band(cell, "strength", "pose_success", [0.0, 90.0], load_views(run))
+    assert lows == pytest.approx([0.676, 0.0], abs=1e-3) and highs == pytest.approx([1.0, 0.324], abs=1e-3)

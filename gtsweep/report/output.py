@@ -41,7 +41,7 @@ def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots:
     if plots:
         from gtsweep.report.plots import write_plots
 
-        files += write_plots(summaries, out_dir)
+        files += write_plots(summaries, out_dir, views)
     return tables, files
 
 
