@@ -169,7 +169,21 @@ def verdict(comparison: Comparison, alpha: float = 0.05, claim: str = "greater")
 
 def _pooled_mean(sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Mean over strata (last axis) of Σ sums / Σ counts over clusters (axis -2); strata without counts skipped."""
-    total, count = sums.sum(axis=-2), counts.sum(axis=-2)
+    return _mean_of_strata(sums.sum(axis=-2), counts.sum(axis=-2))
+
+
+def _resampled(index, sums: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """:func:`_pooled_mean` of the clusters (rows) that each row of ``index`` (..., n) picks, as a weighted sum: a
+    matrix product with how often each row is picked, instead of gathering a (..., n, strata) copy."""
+    index = np.asarray(index).astype(int)
+    flat = index.reshape(-1, index.shape[-1])
+    rows = len(sums)
+    picks = np.bincount((np.arange(len(flat))[:, None] * rows + flat).ravel(), minlength=len(flat) * rows)
+    weights = picks.reshape(len(flat), rows).astype(np.float64)
+    return _mean_of_strata(weights @ sums, weights @ counts).reshape(index.shape[:-1])
+
+
+def _mean_of_strata(total: np.ndarray, count: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a resample whose strata are all empty: NaN
         return np.nanmean(np.where(count > 0, total / np.where(count > 0, count, 1), np.nan), axis=-1)
@@ -196,8 +210,7 @@ def clustered_interval(sums, counts, confidence: float = CONFIDENCE, seed: int =
         return value, value
 
     def statistic(index, axis=-1):
-        index = np.asarray(index).astype(int)
-        return _pooled_mean(sums[index], counts[index])
+        return _resampled(index, sums, counts)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # constant resamples (e.g. every pose found) are not an error here
@@ -220,19 +233,22 @@ def clustered_difference(a_sums, a_counts, b_sums, b_counts, confidence: float =
         return Comparison("paired permutation over images", math.nan, math.nan, n=n)
     if difference == 0 and np.array_equal(a_s, b_s) and np.array_equal(a_c, b_c):
         return Comparison("paired permutation over images", 0.0, 1.0, 0.0, 0.0, n=n)
-    sums, counts = np.concatenate([a_s, b_s]), np.concatenate([a_c, b_c])
+    step_s, step_c = b_s - a_s, b_c - a_c
 
-    def between(x, y, axis=-1):
-        x, y = np.asarray(x).astype(int), np.asarray(y).astype(int)
-        return _pooled_mean(sums[x], counts[x]) - _pooled_mean(sums[y], counts[y])
+    def swapped(x, y, axis=-1):
+        """A - B after the swaps: position i of ``x`` holds i (A's cluster kept) or i + n (swapped with B's)."""
+        flips = (np.asarray(x) >= n).astype(np.float64)
+        moved_s, moved_c = flips @ step_s, flips @ step_c
+        return (_mean_of_strata(a_s.sum(axis=0) + moved_s, a_c.sum(axis=0) + moved_c)
+                - _mean_of_strata(b_s.sum(axis=0) - moved_s, b_c.sum(axis=0) - moved_c))
 
     index = np.arange(n)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        test = stats.permutation_test((index, index + n), between, permutation_type="samples", vectorized=True,
+        test = stats.permutation_test((index, index + n), swapped, permutation_type="samples", vectorized=True,
                                       n_resamples=resamples, rng=np.random.default_rng(seed))
         low, high = (difference, difference) if n < 2 else stats.bootstrap(
-            (index,), lambda i, axis=-1: between(i, np.asarray(i).astype(int) + n), vectorized=True,
+            (index,), lambda i, axis=-1: _resampled(i, a_s, a_c) - _resampled(i, b_s, b_c), vectorized=True,
             confidence_level=confidence, n_resamples=resamples, method="percentile", batch=250,
             rng=np.random.default_rng(seed)).confidence_interval
     return Comparison("paired permutation over images", float(difference), float(test.pvalue), float(low),
