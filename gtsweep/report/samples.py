@@ -138,7 +138,11 @@ class Ties:
         if not self.tests:
             why = "no per-view rows to test ties" if self.untested else "the only entry"
             return f"best {self.metric}: {self.best} {self.best_value:.2f}; {why}"
+        apart = [label for label in self.tests if label not in self.tied]
         tied = f"{len(self.tied)} tied with it ({', '.join(self.tied)})" if self.tied else "none tied with it"
+        if len(self.tied) > 8:  # a long list: name the few the test sets apart instead
+            tied = f"{len(self.tied)} tied with it (all but {', '.join(apart)})" if apart else \
+                f"all {len(self.tied)} others tied with it"
         return (f"best {self.metric}: {self.best} {self.best_value:.2f}; {tied} (paired test vs the best, "
                 f"alpha = {self.alpha:g}; of {len(self.tests)} tested)")
 
