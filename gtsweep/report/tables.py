@@ -52,6 +52,10 @@ def fmt(ours: float, theirs=None, digits: int = 2, low: float = math.nan, high: 
     return text if text == theirs == "NA" else f"{text} ({theirs})"
 
 
+def _number(value) -> float:
+    return math.nan if value is None else float(value)
+
+
 def _missing(value) -> bool:
     return value is None or (isinstance(value, float) and math.isnan(value))
 
@@ -289,13 +293,15 @@ def table_reference_counts(df: pd.DataFrame, views: Views | None = None, alpha: 
 
 
 def table_cells(summaries: list[dict]) -> Table | None:
-    """Every cell with each reported schema metric of its experiment: a new metric needs no other edit here."""
+    """Every cell with each reported schema metric of its experiment (± the half-width of the cell's interval where
+    the schema gives one): a new metric needs no other edit here."""
     records = []
     for s in summaries:
         experiment, values = schema.experiment_of(s), s.get("metrics") or {}
         record = {**{k: s["methods"].get(k) or "" for k in METHODS}, "experiment": experiment, "status": s["status"]}
-        record.update({m.name: fmt(values.get(m.name), None, m.digits) for m in schema.metrics_of(experiment)
-                       if m.reported})
+        record.update({m.name: fmt(values.get(m.name), None, m.digits, _number(values.get(f"{m.name}_ci_low")),
+                                   _number(values.get(f"{m.name}_ci_high")))
+                       for m in schema.metrics_of(experiment) if m.reported})
         records.append(record)
     if not records:
         return None
