@@ -1,11 +1,14 @@
 """Survey tables rebuilt from small sweeps: layout (rows, columns, NA cells) and the paper's numbers beside ours."""
 from __future__ import annotations
 
+import numpy as np
+import pandas as pd
 import pytest
 from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.orchestration.sweep import run_sweep
-from gtsweep.report.tables import build_tables, fmt, main, write_report
+from gtsweep.report.output import main, write_report
+from gtsweep.report.tables import build_tables, fmt
 
 SERIAL = ["runner.backend=serial", "mlflow.enabled=false"]
 
@@ -81,3 +84,147 @@ def test_report_files_and_command(summaries, tmp_path, capsys):
 def test_fmt():
     assert fmt(0.931, 0.9) == "0.93 (0.90)" and fmt(float("nan"), "NA") == "NA" and fmt(551.2, 551, 0) == "551 (551)"
     assert fmt(0.5) == "0.50" and fmt(None, 0.3) == "NA (0.30)"
+
+
+def test_fmt_with_interval():
+    # ours ± half-width of [0.80, 0.90] (paper)
+    assert fmt(0.85, 0.93, 2, 0.80, 0.90) == "0.85 ±0.05 (0.93)"
+    assert fmt(287.0, 534, 0, 155.0, 419.0) == "287 ±132 (534)"
+    assert fmt(float("nan"), 0.9, 2, 0.1, 0.2) == "NA (0.90)"
+
+
+def _fake_run(directory):
+    """Two textures x 10 pairs of incremental pairs, and rotation at two strengths on 2 x 4 images."""
+    from report_fakes import fake_cell
+
+    fake_cell(directory, "sift", "sift", "incremental", [1] * 10 + [1] * 5 + [0] * 5, textures=("carpet", "gravel"))
+    fake_cell(directory, "akaze", "brief", "incremental", [1] * 20, textures=("carpet", "gravel"))
+    fake_cell(directory, "sift", "sift", "rotation", [1, 1] * 4 + [1, 0] * 4, strengths=(0, 90),
+              textures=("carpet", "gravel"))
+    fake_cell(directory, "akaze", "brief", "rotation", [1, 0] * 8, strengths=(0, 90), textures=("carpet", "gravel"))
+    return directory
+
+
+def test_report_by_texture_with_intervals_values_and_ties(tmp_path, capsys):
+    run = _fake_run(tmp_path / "run")
+    assert main([str(run), "--by", "texture", "--no-plots"]) == 0
+    shown = capsys.readouterr().out
+    # SIFT-SIFT 15/20 (Wilson [0.531, 0.888]), AKAZE-BRIEF 20/20 ([0.839, 1]); 5 discordant pairs: McNemar p =
+    # 2/32 = 0.0625 >= 0.05, so SIFT-SIFT is tied with the best
+    assert "| SIFT |  | 0.75 ±0.18 (0.84) |" in shown and "| AKAZE | 1.00 ±0.08 (0.85) |  |" in shown
+    assert "best pose_success: AKAZE-BRIEF 1.00; 1 tied with it (SIFT-SIFT)" in shown
+    values = pd.read_csv(run / "report" / "table4_incremental_values.csv")
+    sift = values[(values["row"] == "SIFT") & (values["column"] == "SIFT")].iloc[0]
+    assert sift["ours"] == 0.75 and sift["ci_low"] == pytest.approx(0.531, abs=1e-3) and sift["paper"] == 0.84
+    # per texture: carpet has SIFT-SIFT 10/10 (Wilson [0.722, 1]), gravel 5/10 ([0.237, 0.763])
+    carpet = (run / "report" / "by_texture" / "carpet" / "table4_incremental.md").read_text()
+    gravel = (run / "report" / "by_texture" / "gravel" / "table4_incremental.md").read_text()
+    assert "texture carpet" in carpet and "| SIFT |  | 1.00 ±0.14 (0.84) |" in carpet
+    assert "| SIFT |  | 0.50 ±0.26 (0.84) |" in gravel
+    # per transform and strength: AKAZE-BRIEF 8/8 at 0, 0/8 at 90 on rotation (Wilson 8/8: [0.676, 1])
+    strengths = (run / "report" / "synthetic_by_strength.md").read_text()
+    assert "| AKAZE-BRIEF [nms] | rotation | 0 | 1.00 ±0.16 |" in strengths
+    assert "| AKAZE-BRIEF [nms] | rotation | 90 | 0.00 ±0.16 |" in strengths
+    # Table 6 with one transform: the cell's own interval, as in results.csv (Wilson 8/16: [0.280, 0.720])
+    table6 = pd.read_csv(run / "report" / "table6_pairings_values.csv")
+    akaze = table6[(table6["row"] == "AKAZE") & (table6["metric"] == "pose_success")].iloc[0]
+    assert akaze["ours"] == 0.5 and akaze["ci_low"] == pytest.approx(0.280, abs=1e-3)
+    assert (run / "report" / "by_texture" / "gravel" / "synthetic_by_strength.md").exists()
+
+
+def test_report_by_texture_is_a_checked_option(tmp_path, capsys):
+    from gtsweep.orchestration.settings import check_settings
+    from gtsweep.core.errors import GtsweepError
+
+    with pytest.raises(GtsweepError, match="report.by"):
+        check_settings({"report": {"by": "image", "alpha": 0.05, "plots": True}})
+    with pytest.raises(GtsweepError, match="report.alpha"):
+        check_settings({"report": {"by": None, "alpha": 1.5, "plots": True}})
+    with pytest.raises(SystemExit):
+        main([str(tmp_path), "--alpha", "0"])
+    assert "--alpha must be in (0, 1)" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_same_seed_same_intervals_on_serial_and_ray_and_from_mlflow(tmp_path, monkeypatch, capsys):
+    """Same seed, bit-identical intervals: serial and Ray (1 CPU) results.csv and report values; the report rebuilt
+    from the MLflow child runs (their <m>_ci_* metrics and per-view artifacts) shows the same intervals."""
+    from gtsweep.cli.app import library_versions
+    from gtsweep.tracking.sweep import SweepTracker
+
+    monkeypatch.chdir(tmp_path)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    grid = ["detector=[censure]", "descriptor=[brief]", "selector=[nms]", "transform=[incremental,rotation]",
+            "transform.rotation.strengths=[0,90]", "mlflow.enabled=false"]
+    serial = compose_config(tiny_overrides(tmp_path, "runner.backend=serial", *grid, f"mlflow.tracking_uri={uri}"))
+    tracker = SweepTracker(serial.mlflow, tmp_path / "serial", "config: yes", "serial")
+    outcome = run_sweep(serial, tmp_path / "serial", hooks=(tracker.log_cell,),
+                        on_start=lambda g, fp: tracker.start(g, fp, library_versions()))
+    tracker.end(outcome)
+    run_sweep(compose_config(tiny_overrides(tmp_path, "runner.backend=ray", "runner.num_cpus=1", *grid)),
+              tmp_path / "ray")
+    results = {name: pd.read_csv(tmp_path / name / "results.csv") for name in ("serial", "ray")}
+    ci = [c for c in results["serial"].columns if "_ci_" in c]
+    assert ci and results["serial"][ci].equals(results["ray"][ci])
+    for name in ("serial", "ray"):
+        assert main([str(tmp_path / name), "--no-plots"]) == 0
+    for table in ("table4_incremental_values.csv", "table6_pairings_values.csv"):
+        pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "serial" / "report" / table),
+                                      pd.read_csv(tmp_path / "ray" / "report" / table), check_exact=True)
+    capsys.readouterr()
+    assert main([tracker.parent_id, "--mlflow", "--tracking-uri", uri, "--out", str(tmp_path / "from_mlflow"),
+                 "--no-plots"]) == 0
+    assert " ±" in capsys.readouterr().out
+    for table in ("table4_incremental_values.csv", "table6_pairings_values.csv"):
+        ours = pd.read_csv(tmp_path / "from_mlflow" / table)
+        theirs = pd.read_csv(tmp_path / "serial" / "report" / table)
+        assert np.allclose(ours[["ours", "ci_low", "ci_high"]], theirs[["ours", "ci_low", "ci_high"]], equal_nan=True)
+
+
+def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
+    """Two repeats (seeds) of a sweep: each repeat is a stratum, images are matched across; Table 6 averages two
+    transforms, and its interval comes from resampling images, not from averaging the cells' intervals."""
+    import json
+
+    from report_fakes import fake_cell
+
+    from gtsweep.report.combine import combine
+
+    for job, sift in (("0", [1] * 15 + [0] * 5), ("1", [1] * 10 + [0] * 10)):
+        directory = tmp_path / job
+        directory.mkdir()
+        (directory / "sweep.json").write_text(json.dumps({"overrides": [f"seed={job}"]}))
+        fake_cell(directory, "sift", "sift", "incremental", sift)
+        fake_cell(directory, "akaze", "brief", "incremental", [1] * 20)
+        fake_cell(directory, "sift", "sift", "rotation", [1, 1] * 4 + [1, 0] * 4, strengths=(0, 90))
+        fake_cell(directory, "sift", "sift", "noise", [1, 0] * 8, strengths=(0, 90))
+    combine(tmp_path, plots=False)
+    report = tmp_path / "combined" / "report"
+    table4 = (report / "table4_incremental.md").read_text()
+    # SIFT-SIFT: (15 + 10) / 40 = 0.62; AKAZE-BRIEF 40/40: a bootstrap has nothing to resample, so Wilson with one
+    # trial per pair (20/20: half-width 0.08); the 5 + 10 discordant pairs are all AKAZE's: not tied
+    assert "| AKAZE | 1.00 ±0.08 (0.85) |  |" in table4 and "| SIFT |  | 0.62 ±" in table4
+    assert "none tied with it" in table4
+    values = pd.read_csv(report / "table6_pairings_values.csv")
+    success = values[values["metric"] == "pose_success"].iloc[0]
+    # rotation 12/16 = 0.75, noise 8/16 = 0.5: the mean over transforms 0.625; averaging the cells' Wilson
+    # intervals would give [0.393, 0.809]
+    assert success["ours"] == pytest.approx(0.625)
+    assert success["ci_low"] < 0.625 < success["ci_high"] and success["ci_low"] != pytest.approx(0.393, abs=0.01)
+
+
+@pytest.mark.slow
+def test_plots_per_texture_with_interval_bands(tmp_path):
+    run = _fake_run(tmp_path / "run")
+    assert main([str(run), "--by", "texture"]) == 0
+    for folder in (run / "report", run / "report" / "by_texture" / "gravel"):
+        assert {"pose_success_vs_rotation.png", "success_heatmap_incremental.png"} <= {p.name for p in
+                                                                                       folder.glob("*.png")}
+    from gtsweep.report.plots import _band
+    from gtsweep.report.samples import load_views
+    from gtsweep.report.tables import load_summaries
+
+    cell = next(s for s in load_summaries(run) if s["key"] == "akaze__nms__brief__rotation")
+    # AKAZE-BRIEF on rotation: 8/8 at 0 (Wilson [0.676, 1]), 0/8 at 90 ([0, 0.324])
+    lows, highs = _band(cell, "strength", "pose_success", [0.0, 90.0], load_views(run))
+    assert lows == pytest.approx([0.676, 0.0], abs=1e-3) and highs == pytest.approx([1.0, 0.324], abs=1e-3)

@@ -1,86 +1,67 @@
-"""The survey-finding checks of the reproduction: hand-built cells with known verdicts, and the paper's own numbers."""
+"""The survey findings as paired tests on hand-built per-view rows (known verdicts, tied data inconclusive), the
+survey's own tables (no per-view rows: not testable, numbers shown) and the REPRODUCTION.md writer on fake runs."""
 import pandas as pd
 import pytest
+from report_fakes import fake_cell
 
 from gtsweep.report.findings import FINDINGS, check_findings
-from gtsweep.report.tables import paper
-
-COLUMNS = ("detector", "selector", "descriptor", "transform", "status", "pose_success", "repeatability",
-           "by_reference_count")
+from gtsweep.report.samples import load_views
+from gtsweep.report.tables import frame, load_summaries, paper
 
 
-def _cells(rows):
-    return pd.DataFrame([dict(zip(COLUMNS, r)) for r in rows])
+def _run(directory):
+    summaries = load_summaries(directory)
+    return frame(summaries), load_views(directory)
 
 
-def _verdicts(frames):
-    return {text: verdict for text, verdict, _ in check_findings(frames)}
+def _verdicts(frames, views=None, alpha=0.05):
+    return {f.text: f for f in check_findings(frames, views, alpha)}
 
 
-def test_findings_by_hand():
-    frames = {
-        # SIFT-SIFT 1.0 on both transforms beats AKAZE-BRIEF (mean 0.9): holds
-        "table6_pairings": _cells([("sift", "nms", "sift", "rotation", "ok", 1.0, None, None),
-                                   ("sift", "nms", "sift", "noise", "ok", 1.0, None, None),
-                                   ("akaze", "nms", "brief", "rotation", "ok", 0.8, None, None),
-                                   ("akaze", "nms", "brief", "noise", "ok", 1.0, None, None)]),
-        # CenSurE-ORB 0.80 vs the best pairing 0.90: more than 0.02 behind, does not hold
-        "table4_incremental": _cells([("censure", "nms", "orb", "incremental", "ok", 0.8, None, None),
-                                      ("sift", "nms", "sift", "incremental", "ok", 0.9, None, None)]),
-        # unoriented with BRIEF: mean (0.1 + 0.2) / 2 = 0.15 <= 0.2, holds (SURF descriptor ignored);
-        # best pairing per detector: SIFT 0.95 (oriented) vs FAST 0.9, GFTT 0.2 (mean 0.55): oriented win
-        "table5_absolute": _cells([("fast", "nms", "brief", "absolute", "ok", 0.1, None, None),
-                                   ("gftt", "nms", "brief", "absolute", "ok", 0.2, None, None),
-                                   ("fast", "nms", "surf", "absolute", "ok", 0.9, None, None),
-                                   ("sift", "nms", "sift", "absolute", "ok", 0.95, None, None)]),
-        # SIFT: NMS 0.8 beats 0.5 and 0.7; MSER: ANMS 0.7 beats NMS 0.5: holds.
-        # Without selection MSER 0.9 > NMS 0.5 but SIFT is not a dense detector: holds
-        "table2_selectors": _cells([("sift", s, None, "rotation", "ok", None, r, None)
-                                    for s, r in (("nms", 0.8), ("anms", 0.5), ("bucketing", 0.7), ("none", 0.6))]
-                                   + [("mser", s, None, "rotation", "ok", None, r, None)
-                                      for s, r in (("nms", 0.5), ("anms", 0.7), ("bucketing", 0.6), ("none", 0.9))]),
-        # success 0.80 at 500 and 0.90 at 1500 features: gain 0.10 > 0.05, does not hold;
-        # at 100 features 0.5 against 0.85 at 1000: 0.35 lower, holds
-        "table7_reference_features": _cells([("surf", "nms", "surf", "incremental", "ok", 0.85, None,
-                                              {"100.0": {"pose_success": 0.5}, "500.0": {"pose_success": 0.8},
-                                               "1000.0": {"pose_success": 0.85},
-                                               "1500.0": {"pose_success": 0.9}})]),
-    }
-    verdicts = _verdicts(frames)
-    expected = {"Table 2": "holds", "CenSurE with": "does not hold", "collapse": "holds", "orientation outperform": "holds",
-                "SIFT is best": "holds", "stops growing": "does not hold", "100 or fewer": "holds",
-                "without selection": "holds"}
-    for fragment, verdict in expected.items():
-        matching = [v for text, v in verdicts.items() if fragment in text]
-        assert matching and set(matching) == {verdict}, (fragment, matching)
-    assert set(_verdicts({}).values()) == {"not measured"}
+TABLE4 = "CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)"
+TABLE6 = "SIFT is best under severe synthetic transforms (Table 6)"
 
 
-def test_repeatability_ambiguity_and_precision_by_hand():
-    # Table 3 with NMS (ANMS for MSER): repeatability SIFT .8, AKAZE .7, SURF .75, FAST .6, MSER (ANMS) .65:
-    # the top three are SIFT, SURF, AKAZE, holds. Ambiguity SIFT 1.5 >= 1.3 and above the median 1.0: holds;
-    # SURF 1.01 is above the median 1.0 by more than the rounding tolerance: "among the lowest" does not hold.
-    rows = []
-    for det, rep, amb in (("sift", 0.8, 1.5), ("akaze", 0.7, 1.0), ("surf", 0.75, 1.01), ("fast", 0.6, 1.0)):
-        rows.append({"detector": det, "selector": "nms", "transform": "rotation", "status": "ok",
-                     "repeatability": rep, "ambiguity": amb})
-    rows += [{"detector": "mser", "selector": s, "transform": "rotation", "status": "ok", "repeatability": r,
-              "ambiguity": 1.0} for s, r in (("nms", 0.9), ("anms", 0.65))]
-    # Table 6: success .9/.5/.7 ranks with precision .95/.6/.8 (Spearman 1) but not with correct matches
-    # 100/300/200 (Spearman -0.5): holds
-    pairs = [{"detector": "sift", "descriptor": "sift", "pose_success": 0.9, "precision": 0.95, "n_correct": 100},
-             {"detector": "censure", "descriptor": "brief", "pose_success": 0.5, "precision": 0.6, "n_correct": 300},
-             {"detector": "akaze", "descriptor": "akaze", "pose_success": 0.7, "precision": 0.8, "n_correct": 200}]
-    frames = {"table3_detectors": pd.DataFrame(rows),
-              "table6_pairings": pd.DataFrame([{**p, "transform": "noise", "status": "ok"} for p in pairs])}
-    verdicts = _verdicts(frames)
-    assert verdicts["SIFT, AKAZE and SURF have the best repeatability (Table 3)"] == "holds"
-    assert verdicts["SIFT's ambiguity is large, about 1.5 (Table 3)"] == "holds"
-    assert verdicts["SURF, CenSurE and AKAZE have among the lowest ambiguity (Table 3)"] == "does not hold"
-    assert verdicts["Precision, not the number of correct matches, tracks pose success (Table 6)"] == "holds"
-    # MSER with NMS (0.9) would top the ranking, but MSER is ranked with ANMS as in the survey
-    frames["table3_detectors"].loc[frames["table3_detectors"]["detector"] == "surf", "repeatability"] = 0.5
-    assert _verdicts(frames)["SIFT, AKAZE and SURF have the best repeatability (Table 3)"] == "does not hold"
+def test_mcnemar_finding_holds_fails_and_is_inconclusive_on_tied_data(tmp_path):
+    # CenSurE-BRIEF succeeds on 20 pairs, SIFT-SIFT on 10 of them: 10 discordant pairs, all CenSurE's:
+    # exact McNemar p = 2 / 2^10 = 0.00195 < 0.05: holds
+    fake_cell(tmp_path / "a", "censure", "brief", "incremental", [1] * 20)
+    fake_cell(tmp_path / "a", "sift", "sift", "incremental", [1] * 10 + [0] * 10)
+    frame_a, views_a = _run(tmp_path / "a")
+    found = _verdicts({"table4_incremental": frame_a}, {"table4_incremental": views_a})[TABLE4]
+    assert found.verdict == "holds" and found.test == "exact McNemar"
+    assert "censure-brief vs sift-sift: 1.00 vs 0.50" in found.evidence and "p = 0.002" in found.evidence
+    # the other way round: fails
+    fake_cell(tmp_path / "b", "censure", "brief", "incremental", [1] * 10 + [0] * 10)
+    fake_cell(tmp_path / "b", "sift", "sift", "incremental", [1] * 20)
+    frame_b, views_b = _run(tmp_path / "b")
+    assert _verdicts({"table4_incremental": frame_b}, {"table4_incremental": views_b})[TABLE4].verdict == "fails"
+    # tied data: both succeed on the same 15 of 20 pairs: no discordant pair, p = 1: inconclusive
+    same = [1] * 15 + [0] * 5
+    fake_cell(tmp_path / "c", "censure", "brief", "incremental", same)
+    fake_cell(tmp_path / "c", "sift", "sift", "incremental", same)
+    frame_c, views_c = _run(tmp_path / "c")
+    tied = _verdicts({"table4_incremental": frame_c}, {"table4_incremental": views_c})[TABLE4]
+    assert tied.verdict == "inconclusive" and "p = 1" in tied.evidence
+    # 3 discordant pairs of 20 (the survey's 0.81 vs 0.87 kind of gap): p = 0.25, inconclusive
+    fake_cell(tmp_path / "d", "censure", "brief", "incremental", [1] * 18 + [0] * 2)
+    fake_cell(tmp_path / "d", "sift", "sift", "incremental", [1] * 15 + [0] * 5)
+    frame_d, views_d = _run(tmp_path / "d")
+    close = _verdicts({"table4_incremental": frame_d}, {"table4_incremental": views_d})[TABLE4]
+    assert close.verdict == "inconclusive" and "p = 0.25" in close.evidence
+    # the significance level is an option: at alpha = 0.3 the same data holds
+    assert _verdicts({"table4_incremental": frame_d}, {"table4_incremental": views_d}, 0.3)[TABLE4].verdict == "holds"
+
+
+def test_synthetic_finding_is_a_permutation_test_over_images(tmp_path):
+    # 8 images x 2 strengths on rotation: SIFT-SIFT succeeds everywhere, AKAZE-BRIEF fails at strength 90 on every
+    # image: the 2^8 swaps of the two within images give |diff| >= 0.5 only for the 2 all-one-way ones: p = 2/256
+    fake_cell(tmp_path, "sift", "sift", "rotation", [1] * 16, strengths=(0, 90))
+    fake_cell(tmp_path, "akaze", "brief", "rotation", [1, 0] * 8, strengths=(0, 90))
+    cells, views = _run(tmp_path)
+    found = _verdicts({"table6_pairings": cells}, {"table6_pairings": views})[TABLE6]
+    assert found.verdict == "holds" and found.test == "paired permutation over images"
+    assert "diff +0.50" in found.evidence and "p = 0.0078" in found.evidence and "n = 8" in found.evidence
 
 
 NAMES = {"CenSurE": "censure", "HarrisLaplace": "harris_laplace", "LIFT": "lift"}  # LIFT: not our XFeat
@@ -117,20 +98,47 @@ def _paper_frames() -> dict[str, pd.DataFrame]:
     return frames
 
 
-def test_every_finding_holds_on_the_papers_own_numbers():
-    """The checks encode the survey's claims: on its published tables each one holds (Table 3's full numbers and
-    its ambiguity column are not published, so those two are not measured here)."""
-    verdicts = _verdicts(_paper_frames())
-    assert len(verdicts) == len(FINDINGS)
-    for text, verdict in verdicts.items():
-        expected = "not measured" if "(Table 3)" in text else "holds"
-        assert verdict == expected, (text, verdict)
+def test_the_papers_tables_have_no_per_view_rows_so_findings_are_not_testable():
+    """The survey's published numbers are means without their images: each paired test is "not testable" and the
+    point values are shown (Table 3's full numbers and ambiguity are not published: not measured). The Spearman
+    finding needs only one value per pairing, so it is judged (bootstrap over the survey's 25 pairings)."""
+    found = _verdicts(_paper_frames())
+    assert len(found) == len(FINDINGS)
+    for text, f in found.items():
+        if "(Table 3)" in text:
+            assert f.verdict == "not measured", text
+        elif "tracks pose success" in text:
+            assert f.verdict in ("holds", "inconclusive") and "pairings" in f.evidence
+        else:
+            assert f.verdict == "not testable" and " vs " in f.evidence, (text, f)
+    assert "censure-orb vs " in found[TABLE4].evidence  # the paper's best CenSurE pairing against its rival
 
 
 @pytest.mark.parametrize("text, check", FINDINGS)
 def test_each_check_tolerates_a_missing_preset(text, check):
-    holds, evidence = check({})
-    assert holds is None and evidence == ""
+    assert _verdicts({})[text].verdict == "not measured"
+
+
+def test_document_writer_on_fake_runs(tmp_path):
+    """write_document: every finding with its verdict, test and numbers; every table with the entries tied with
+    its best (here two of three Table 4 pairings are indistinguishable from the best, one is clearly worse)."""
+    from gtsweep.report import reproduce
+
+    output = tmp_path / "work" / "table4_incremental"
+    fake_cell(output, "censure", "brief", "incremental", [1] * 20)
+    fake_cell(output, "censure", "orb", "incremental", [1] * 19 + [0])
+    fake_cell(output, "sift", "sift", "incremental", [1] * 8 + [0] * 12)
+    measured = {"preset": "table4_incremental", "output": output, "wall_s": 12.4, "peak_mb": 345.6,
+                "cache_hit_rate": 0.25, "mlflow_runs": 4, "cells": 3}
+    docs = tmp_path / "docs"
+    text = reproduce.write_document([measured], "tiny", docs, alpha=0.05).read_text()
+    assert "| table4_incremental | 3 | 12 | 346 | 0.25 | 4 |" in text
+    row = next(line for line in text.splitlines() if line.startswith(f"| {TABLE4}"))
+    assert "| holds | exact McNemar | censure-brief vs sift-sift: 1.00 vs 0.40" in row
+    assert "| table4_incremental | CenSurE-BRIEF (pose_success 1.00) | 1 of 2 | CenSurE-ORB |" in text
+    # Wilson 20/20: [0.839, 1], half-width 0.08; 19/20: [0.764, 0.991]; the paper's number beside ours
+    assert "| CenSurE | 0.95 ±0.11 (0.93) | 1.00 ±0.08 (0.90) |  |" in text
+    assert "not measured" in text and (docs / "reproduction" / "table4_incremental.csv").exists()
 
 
 def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
@@ -154,8 +162,9 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     (work / "measurements.json").write_text(json.dumps({"size": "tiny", "presets": [measured]}))
     docs.mkdir()
     (docs / "reproduction_notes.md").write_text("## Why\n\nHand-written explanation.")
-    assert reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs)]) == 0
+    assert reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs), "--alpha", "0.1"]) == 0
     text = (docs / "REPRODUCTION.md").read_text()
+    assert "alpha = 0.1" in text and "--alpha 0.1" in text
     assert "| table4_incremental | 1 | 12 | 346 | 0.25 | 2 |" in text
     assert "| all | 1 | 12 | 346 | | 2 |" in text
     assert "| CenSurE |" in text and "(0.90)" in text  # CenSurE-BRIEF beside the paper's 0.90

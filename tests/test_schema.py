@@ -16,7 +16,7 @@ from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summarize, summary_table
 from gtsweep.orchestration.sweep import run_sweep
-from gtsweep.report.tables import write_report
+from gtsweep.report.output import write_report
 from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow
 
 NAN = math.nan

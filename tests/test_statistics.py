@@ -3,12 +3,17 @@ import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from gtsweep.evaluation.statistics import (
     FAILS,
     HOLDS,
     INCONCLUSIVE,
     bootstrap_interval,
+    clustered_difference,
+    clustered_interval,
+    clustered_mean,
+    correlation_difference,
     correlation_interval,
     mcnemar_exact,
     paired_difference,
@@ -66,3 +71,34 @@ def test_correlation_interval():
     # Spearman: d = (-1, 1, -1, 1, -1, 1), 1 - 6 * 6 / (6 * 35) = 0.828571
     assert rho == pytest.approx(0.828571, abs=1e-6) and low <= rho <= high
     assert math.isnan(correlation_interval([1, 1, 1], [1, 2, 3])[0])
+
+
+def test_clustered_mean_averages_strata_of_pooled_clusters():
+    # two images (clusters) x two transforms (strata): rotation 1/1 and 1/1 -> 1.0; noise 1/2 and 0/2 -> 0.25:
+    # the table's value is the mean over transforms, (1.0 + 0.25) / 2 = 0.625
+    sums, counts = np.array([[1.0, 1.0], [1.0, 0.0]]), np.array([[1.0, 2.0], [1.0, 2.0]])
+    assert clustered_mean(sums, counts) == pytest.approx(0.625)
+    # resampling images: {1,1} -> (1 + 0.5)/2 = 0.75, {2,2} -> (1 + 0)/2 = 0.5, mixed -> 0.625: interval [0.5, 0.75]
+    assert clustered_interval(sums, counts) == pytest.approx((0.5, 0.75))
+    assert clustered_interval(sums, counts, seed=4) == clustered_interval(sums, counts, seed=4)
+
+
+def test_clustered_difference_swaps_whole_images():
+    # one stratum, 5 images with one view each: the same exact sign-flip test as paired_difference (p = 8/32)
+    a, b = np.array([[0.5], [0.7], [0.9], [0.6], [0.8]]), np.array([[0.4], [0.7], [0.7], [0.6], [0.5]])
+    ones = np.ones((5, 1))
+    result = clustered_difference(a, ones, b, ones)
+    assert result.difference == pytest.approx(0.12) and result.p_value == pytest.approx(0.25) and result.n == 5
+    tied = clustered_difference(a, ones, a, ones)
+    assert tied.p_value == 1.0 and verdict(tied) == INCONCLUSIVE
+
+
+def test_correlation_difference_is_judged_by_its_interval():
+    success = [0.9, 0.5, 0.7, 0.6, 0.4, 0.8, 0.3]
+    precision = [0.95, 0.6, 0.8, 0.7, 0.5, 0.85, 0.4]  # ranks exactly with success: rho 1
+    correct = [100, 300, 200, 150, 90, 50, 120]
+    result = correlation_difference(precision, correct, success)
+    assert result.difference == pytest.approx(1 - stats.spearmanr(correct, success).statistic)
+    assert math.isnan(result.p_value) and result.low <= result.difference <= result.high
+    assert verdict(result) == (HOLDS if result.low > 0 else INCONCLUSIVE)
+    assert math.isnan(correlation_difference([1, 1, 1], [1, 2, 3], [1, 1, 1]).difference)

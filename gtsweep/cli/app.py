@@ -33,7 +33,9 @@ from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
-from gtsweep.report.tables import Table, frame, sample_note, write_report
+from gtsweep.report.output import write_report
+from gtsweep.report.samples import load_views
+from gtsweep.report.tables import Table, frame, sample_note
 
 log = logging.getLogger(__name__)
 register_resolvers()  # also in processes that only import this module (Hydra's joblib launcher workers)
@@ -95,7 +97,8 @@ def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
         outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress,
                             on_checked=tracker.open if tracker is not None else None)
         progress.phase("report")
-        tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
+        tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots,
+                                     views=load_views(output_dir), by=cfg.report.by, alpha=cfg.report.alpha)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
@@ -173,7 +176,7 @@ def format_outcome(outcome: SweepOutcome, tables: list[Table] = ()) -> str:
     if tables:
         for table in tables:
             lines += ["", table.markdown()]
-        lines += ["", "cells read 'ours (paper)'; NA = the pairing cannot be evaluated"]
+        lines += ["", "cells read 'ours ±half-width of the 95 % interval (paper)'; NA = not applicable"]
     else:
         for title, pivot in headline_tables(outcome).items():
             lines += ["", title, pivot.to_string()]

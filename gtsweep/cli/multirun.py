@@ -47,7 +47,7 @@ class MultirunReport(Callback):
 
         sweep_dir = Path(config.hydra.sweep.dir)
         try:
-            files = combine(sweep_dir, plots=config.report.plots)
+            files = combine(sweep_dir, plots=config.report.plots, by=config.report.by, alpha=config.report.alpha)
         except GtsweepError as e:
             print(f"gtsweep: multirun: nothing combined ({e})")
             return

@@ -29,9 +29,10 @@ from gtsweep.core.errors import GtsweepError
 
 #: The experiments whose rows the schema describes, each extending the one before it.
 EXPERIMENTS = ("detection", "matching", "pose")
-#: Columns that identify a view (not aggregated). Synthetic views have a strength, pairs NaN; reference_count is
+#: Columns that identify a view (not aggregated); the cell CSV keeps its transform too, so each row names its
+#: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a strength, pairs NaN; reference_count is
 #: the number of reference keypoints kept (survey Table 7), NaN without experiment.reference_counts.
-META = ("view", "image", "texture", "strength", "reference_count")
+META = ("view", "image", "texture", "transform", "strength", "reference_count")
 #: Meta columns a cell is also aggregated per value of (``by_<step>`` in the summary, ``<metric>_vs_<step>``).
 STEP_KEYS = ("strength", "reference_count")
 #: The metric the terminal summary shows, per experiment.

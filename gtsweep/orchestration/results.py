@@ -79,6 +79,9 @@ class ResultStore:
         """Write a cell's rows (with the derived metrics), then its summary (the completion marker)."""
         if rows is not None:
             rows = schema.with_derived(rows, summary.get("experiment"))
+            transform = (summary.get("methods") or {}).get("transform")
+            if transform and "transform" not in rows and "texture" in rows:  # each row names its transform
+                rows.insert(rows.columns.get_loc("texture") + 1, "transform", transform)
             write_atomically(self.cells_dir / f"{key}.csv", rows.to_csv(index=False))
         write_atomically(self.cells_dir / f"{key}.json", json.dumps(_json_safe(summary), indent=1, sort_keys=True))
 

@@ -39,6 +39,8 @@ SETTINGS = {
     "mlflow.enabled": Choice((True, False)),
     "mlflow.timeout_s": Range(0, 600, low_open=True),
     "report.plots": Choice((True, False)),
+    "report.by": Choice(("texture",), optional=True),
+    "report.alpha": Range(0, 1, low_open=True, high_open=True),
 }
 
 

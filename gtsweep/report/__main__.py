@@ -1,5 +1,5 @@
 import sys
 
-from gtsweep.report.tables import main
+from gtsweep.report.output import main
 
 sys.exit(main())

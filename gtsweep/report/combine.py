@@ -1,8 +1,9 @@
 """One table and one report across the jobs of a multirun (``python -m gtsweep -m seed=0,1 ...``).
 
 Jobs that differ only in ``seed`` are repeats of one setting: each cell gets the mean of its metrics over the
-repeats, their spread (sample standard deviation) and the number of repeats. Jobs that differ in anything else are
-separate settings (named by the overrides that differ, e.g. ``selector.nms.params.n=500``), side by side.
+repeats (:func:`~gtsweep.report.breakdown.mean_summary`), their spread (sample standard deviation) and the number
+of repeats. Jobs that differ in anything else are separate settings (named by the overrides that differ, e.g.
+``selector.nms.params.n=500``), side by side.
 Written into ``<sweep dir>/combined/``::
 
     all_results.csv  every cell of every job: setting, seed, job, methods, status, metrics (not results.csv:
@@ -14,7 +15,6 @@ Written into ``<sweep dir>/combined/``::
 from __future__ import annotations
 
 import json
-import math
 import re
 from pathlib import Path
 
@@ -23,7 +23,10 @@ import pandas as pd
 from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.results import summary_table
-from gtsweep.report.tables import load_summaries, write_report
+from gtsweep.report.breakdown import mean_summary
+from gtsweep.report.output import write_report
+from gtsweep.report.samples import load_views
+from gtsweep.report.tables import ALPHA, load_summaries
 
 SEED = re.compile(r"^\+*seed=(.*)$")
 METHODS = ["detector", "selector", "descriptor", "transform"]
@@ -49,33 +52,9 @@ def _job_order(name: str):
     return (0, int(name)) if name.isdigit() else (1, name)
 
 
-def mean_summary(summaries: list[dict]) -> dict:
-    """One cell's summaries over repeats: metrics (and per-step values) averaged over the repeats that evaluated
-    it; ``ok`` when any did, else the first repeat's status and reason."""
-    ok = [s for s in summaries if s["status"] == "ok"]
-    if not ok:
-        return dict(summaries[0])
-    merged = {k: v for k, v in ok[0].items() if not k.startswith("by_") and k != "metrics"}
-    merged["metrics"] = _mean_dicts([s.get("metrics") or {} for s in ok])
-    for key in {k for s in ok for k in s if k.startswith("by_")}:
-        steps = {step for s in ok for step in s.get(key) or {}}
-        merged[key] = {step: _mean_dicts([(s.get(key) or {}).get(step) or {} for s in ok]) for step in steps}
-    merged["n_repeats"] = len(ok)
-    return merged
-
-
-def _mean_dicts(dicts: list[dict]) -> dict:
-    names = schema.ordered({k for d in dicts for k in d})
-    means = {}
-    for name in names:
-        values = [float(d[name]) for d in dicts if isinstance(d.get(name), (int, float))
-                  and math.isfinite(float(d[name]))]
-        means[name] = sum(values) / len(values) if values else None
-    return means
-
-
-def combine(sweep_dir: str | Path, plots: bool = True) -> list[Path]:
-    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written."""
+def combine(sweep_dir: str | Path, plots: bool = True, by: str | None = None, alpha: float = ALPHA) -> list[Path]:
+    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written. The report's
+    intervals come from every repeat's per-view rows (each repeat a stratum of its own, images matched across)."""
     sweep_dir = Path(sweep_dir)
     jobs = jobs_of(sweep_dir)
     if not jobs:
@@ -94,11 +73,16 @@ def combine(sweep_dir: str | Path, plots: bool = True) -> list[Path]:
     settings = sorted({job["setting"] for job in jobs})
     for setting in settings:
         cells: dict[str, list[dict]] = {}
+        views: dict[str, list[pd.DataFrame]] = {}
         for job in (j for j in jobs if j["setting"] == setting):
             for s in by_job[job["job"]]:
                 cells.setdefault(s["key"], []).append(s)
+            for key, rows in load_views(job["dir"]).items():
+                views.setdefault(key, []).append(rows.assign(repeat=job["job"]))
         target = out / "report" / (_slug(setting) if len(settings) > 1 else "")
-        files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots)[1]
+        files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots,
+                              views={k: pd.concat(v, ignore_index=True) for k, v in views.items()}, by=by,
+                              alpha=alpha)[1]
     return files
 
 

@@ -1,207 +1,294 @@
-"""The survey's findings, each checked against a reproduction's cells (one frame of cells per preset).
+"""The survey's findings, each stated as a comparison and judged with a paired test on the same images or pairs.
 
-A check returns ``(holds, evidence)``: ``holds`` is None when the preset it needs was not run. Thresholds follow
-the survey's wording and its two-decimal rounding (values within 0.005 count as a tie); applied to the paper's
-own numbers every check holds (``tests/test_reproduce.py``).
+Input: per preset, the frame of its cells (:func:`gtsweep.report.tables.frame`) and the cells' per-view rows.
+Each finding compares two entries (or one entry with a bound) and returns a :class:`Finding` with a verdict:
+
+- *holds*: the difference is significant at ``alpha`` in the survey's direction;
+- *fails*: it is significant the other way;
+- *inconclusive*: the data cannot tell (e.g. 3 pairs out of 54);
+- *not testable*: the cells have no per-view rows (the survey's own tables): the point values are shown;
+- *not measured*: the preset it needs was not run.
+
+Tests (:mod:`gtsweep.report.samples`, :mod:`gtsweep.evaluation.statistics`): an exact McNemar test for the success
+of two pairings on the same pairs; a paired permutation test swapping the two entries within images, with a
+bootstrap interval of the difference, for repeatability, ambiguity and success averaged over transforms; a
+bootstrap interval over pairings for a difference of Spearman correlations. A finding made of several comparisons
+(e.g. one per detector) holds when all hold, fails when any fails, and is inconclusive otherwise.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import pandas as pd
 
+from gtsweep.evaluation import statistics
 from gtsweep.evaluation.transforms import TRANSFORMS
+from gtsweep.report.samples import compare, estimate
 from gtsweep.stages.detect import DETECTORS
 
-SYNTHETIC = tuple(TRANSFORMS)  # the synthetic transforms
-TIE = 0.005  # the survey prints two decimals
+SYNTHETIC = tuple(TRANSFORMS)
+NOT_MEASURED, NOT_TESTABLE = "not measured", "not testable"
+MARGIN = 0.05  # "success stops growing": a gain below 0.05 (the survey's tables print two decimals)
 
 
-def _ok(df: pd.DataFrame | None) -> pd.DataFrame:
-    return df[df["status"] == "ok"] if df is not None and len(df) else pd.DataFrame()
+@dataclass
+class Finding:
+    text: str
+    verdict: str
+    test: str = ""
+    evidence: str = ""
 
 
-def _success(df: pd.DataFrame | None, transform: str) -> pd.Series:
-    """Pose success per (detector, descriptor) on ``transform`` (evaluated cells without reference counts)."""
-    part = _ok(df)
-    if part.empty:
-        return pd.Series(dtype=float)
-    part = part[part["transform"] == transform]
-    if "by_reference_count" in part:
-        part = part[part["by_reference_count"].isna()]
-    return part.groupby(["detector", "descriptor"])["pose_success"].mean() if len(part) else pd.Series(dtype=float)
+class Data:
+    """One preset's evaluated cells and their per-view rows."""
+
+    def __init__(self, frame: pd.DataFrame | None, views, alpha: float):
+        ok = frame is not None and len(frame) and "status" in frame
+        self.cells = frame[frame["status"] == "ok"] if ok else pd.DataFrame()
+        self.views, self.alpha = views, alpha
+
+    def select(self, transforms=None, **methods) -> pd.DataFrame:
+        part = self.cells
+        if part.empty:
+            return part
+        if transforms is not None:
+            part = part[part["transform"].isin(transforms)]
+        for column, names in methods.items():
+            part = part[part[column].isin([names] if isinstance(names, str) else list(names))]
+        return part
+
+    def value(self, cells, metric, where=None) -> float:
+        return estimate(cells, metric, self.views, where)[0] if len(cells) else math.nan
 
 
-def _detection(df: pd.DataFrame | None, metric: str) -> pd.DataFrame:
-    """``metric`` per detector (rows) and selector (columns), equal weight per transform type."""
-    part = _ok(df)
-    if part.empty or metric not in part:
-        return pd.DataFrame()
-    return part.groupby(["detector", "selector"])[metric].mean().unstack()
+def _judge(data: Data, parts: list[tuple[str, pd.DataFrame, pd.DataFrame, str, str]], where_a=None,
+           where_b=None) -> tuple[str, str, str]:
+    """Verdict, test and evidence of comparisons ``(label, A, B, metric, claim)`` (claim: greater or less)."""
+    verdicts, tests, lines = [], set(), []
+    for label, a, b, metric, claim in parts:
+        value_a, value_b = data.value(a, metric, where_a), data.value(b, metric, where_b)
+        result = compare(a, b, metric, data.views, where_a, where_b) if data.views else None
+        if result is None:
+            verdicts.append(NOT_TESTABLE)
+            lines.append(f"{label}: {value_a:.2f} vs {value_b:.2f}")
+            continue
+        verdicts.append(_within(result, MARGIN) if claim == "within" else statistics.verdict(result, data.alpha, claim))
+        tests.add(result.test)
+        interval = f" [{result.low:+.2f}, {result.high:+.2f}]" if math.isfinite(result.low) else ""
+        lines.append(f"{label}: {value_a:.2f} vs {value_b:.2f}, diff {result.difference:+.2f}{interval}, "
+                     f"p = {result.p_value:.2g}, n = {result.n}")
+    return _combine(verdicts), "; ".join(sorted(tests)), "; ".join(lines)
 
 
-def _best_selector(df: pd.DataFrame | None, metric: str) -> pd.Series:
-    """``metric`` per detector with the survey's selector: NMS, ANMS for MSER (else whichever was run)."""
-    table = _detection(df, metric)
-    if table.empty:
-        return pd.Series(dtype=float)
-    picks = {d: ("anms" if d == "mser" and "anms" in table else "nms" if "nms" in table else table.columns[0])
-             for d in table.index}
-    return pd.Series({d: table.loc[d, s] for d, s in picks.items()}).dropna()
+def _within(result: statistics.Comparison, margin: float) -> str:
+    """A claim of no (relevant) gain: *holds* when the whole interval of A - B lies below ``margin``, *fails* when
+    it lies above, else *inconclusive* (absence of a significant difference alone proves nothing)."""
+    if not math.isfinite(result.high):
+        return statistics.INCONCLUSIVE
+    return statistics.HOLDS if result.high <= margin else statistics.FAILS if result.low > margin else \
+        statistics.INCONCLUSIVE
 
 
-def _pair(key) -> str:
-    return f"{key[0]}-{key[1]}"
+def _combine(verdicts: list[str]) -> str:
+    if not verdicts:
+        return NOT_MEASURED
+    if NOT_TESTABLE in verdicts:
+        return NOT_TESTABLE
+    if statistics.FAILS in verdicts:
+        return statistics.FAILS
+    return statistics.HOLDS if all(v == statistics.HOLDS for v in verdicts) else statistics.INCONCLUSIVE
 
 
-def sift_best_on_synthetic(frames):
-    part = _ok(frames.get("table6_pairings"))
-    if part.empty:
-        return None, ""
-    means = part[part["transform"].isin(SYNTHETIC)].groupby(["detector", "descriptor"])["pose_success"].mean()
-    if ("sift", "sift") not in means:
-        return None, ""
-    sift, tied = means[("sift", "sift")], int((means >= means.max() - TIE).sum())
-    return bool(sift >= means.max() - TIE), (
-        f"SIFT-SIFT {sift:.2f}; best {_pair(means.idxmax())} {means.max():.2f}"
-        + (f" ({tied} of {len(means)} pairings tie for best)" if tied > 1 else ""))
+def _best(data: Data, entries: dict[str, pd.DataFrame], metric: str, lowest: bool = False, where=None):
+    values = {k: data.value(v, metric, where) for k, v in entries.items() if len(v)}
+    values = {k: v for k, v in values.items() if math.isfinite(v)}
+    return (min if lowest else max)(values, key=values.get) if values else None
 
 
-def censure_best_incremental(frames):
-    success = _success(frames.get("table4_incremental"), "incremental")
-    ours = [success.get(("censure", d), math.nan) for d in ("orb", "brief", "latch")]
-    if success.empty or all(math.isnan(v) for v in ours):
-        return None, ""
-    return bool(max(ours) >= success.max() - 0.02), (
-        f"CenSurE-ORB/BRIEF/LATCH {', '.join(f'{v:.2f}' for v in ours)}; best {_pair(success.idxmax())} "
-        f"{success.max():.2f}")
+def _pairings(data: Data, transforms) -> dict[str, pd.DataFrame]:
+    cells = data.select(transforms)
+    if cells.empty or "descriptor" not in cells:
+        return {}
+    if "by_reference_count" in cells:
+        cells = cells[cells["by_reference_count"].isna()]
+    return {f"{d}-{s}": group for (d, s), group in cells.dropna(subset=["descriptor"]).groupby(
+        ["detector", "descriptor"])}
 
 
-def unoriented_collapse_absolute(frames):
-    success = _success(frames.get("table5_absolute"), "absolute")
-    values = [v for (det, desc), v in success.items()
-              if det in DETECTORS and not DETECTORS[det].orientation and desc in ("orb", "brief", "latch", "sift")]
-    if not values:
-        return None, ""
-    mean = sum(values) / len(values)
-    return mean <= 0.2, f"mean {mean:.2f} over {len(values)} pairings (survey ~0.10)"
+def _selector_cells(data: Data) -> dict[str, dict[str, pd.DataFrame]]:
+    """Detection cells per detector and selector."""
+    cells = data.select()
+    if cells.empty:
+        return {}
+    cells = cells[cells["descriptor"].isna()] if "descriptor" in cells else cells
+    return {d: {s: c for s, c in group.groupby("selector")} for d, group in cells.groupby("detector")}
 
 
-def oriented_detectors_win_absolute(frames):
-    """Every detector's best pairing: those with orientation beat those without (Table 5)."""
-    success = _success(frames.get("table5_absolute"), "absolute")
-    best = success.groupby(level=0).max() if len(success) else success
-    oriented = [d for d in best.index if d in DETECTORS and DETECTORS[d].orientation]
-    unoriented = [d for d in best.index if d in DETECTORS and not DETECTORS[d].orientation]
+def _survey_selector(detector: str, by_selector: dict) -> str:
+    """The survey's selector for Table 3: NMS, ANMS for MSER (else whichever was run)."""
+    preferred = ("anms", "nms") if detector == "mser" else ("nms",)
+    return next((s for s in preferred if s in by_selector), next(iter(by_selector)))
+
+
+def nms_beats_other_selectors(d: dict[str, Data]):
+    data = d["table2_selectors"]
+    parts = []
+    for det, sel in _selector_cells(data).items():
+        mine = "anms" if det == "mser" else "nms"
+        others = {s: c for s, c in sel.items() if s in {"nms", "anms", "bucketing"} - {mine}}
+        if mine not in sel or len(others) < 2:
+            continue
+        rival = _best(data, others, "repeatability")
+        parts.append((f"{det} {mine.upper()} vs {rival.upper()}", sel[mine], others[rival], "repeatability",
+                      "greater"))
+    return data, parts
+
+
+def selection_hurts_dense_detectors(d):
+    data = d["table2_selectors"]
+    sel = _selector_cells(data)
+    return data, [(f"{det} none vs NMS", sel[det]["none"], sel[det]["nms"], "repeatability", "greater")
+                  for det in ("mser", "fast", "agast", "brisk") if {"none", "nms"} <= set(sel.get(det, {}))]
+
+
+def _table3(d) -> tuple[Data, dict[str, pd.DataFrame]]:
+    data = d["table3_detectors"]
+    cells = {det: sel[_survey_selector(det, sel)] for det, sel in _selector_cells(data).items() if sel}
+    return data, cells
+
+
+def best_repeatability(d):
+    data, cells = _table3(d)
+    named = [x for x in ("sift", "akaze", "surf") if x in cells]
+    rival = _best(data, {k: v for k, v in cells.items() if k not in named}, "repeatability")
+    if len(named) < 3 or rival is None:
+        return data, []
+    return data, [(f"{x} vs {rival}", cells[x], cells[rival], "repeatability", "greater") for x in named]
+
+
+def _median_detector(data: Data, cells: dict, metric: str, leave_out=()) -> str | None:
+    values = pd.Series({k: data.value(v, metric) for k, v in cells.items() if k not in leave_out}).dropna()
+    return None if values.empty else (values - values.median()).abs().idxmin()
+
+
+def sift_ambiguous(d):
+    data, cells = _table3(d)
+    median = _median_detector(data, cells, "ambiguity", ("sift",))
+    if "sift" not in cells or median is None:
+        return data, []
+    return data, [(f"sift vs median detector {median}", cells["sift"], cells[median], "ambiguity", "greater")]
+
+
+def low_ambiguity_detectors(d):
+    data, cells = _table3(d)
+    named = [x for x in ("surf", "censure", "akaze") if x in cells]
+    median = _median_detector(data, cells, "ambiguity", named)
+    if not named or median is None or len(cells) < 4:
+        return data, []
+    return data, [(f"{x} vs median detector {median}", cells[x], cells[median], "ambiguity", "less") for x in named]
+
+
+def censure_best_incremental(d):
+    data = d["table4_incremental"]
+    entries = _pairings(data, ["incremental"])
+    mine = {k: v for k, v in entries.items() if k in ("censure-orb", "censure-brief", "censure-latch")}
+    best, rival = _best(data, mine, "pose_success"), _best(data, {k: v for k, v in entries.items()
+                                                                  if not k.startswith("censure-")}, "pose_success")
+    if best is None or rival is None:
+        return data, []
+    return data, [(f"{best} vs {rival}", mine[best], entries[rival], "pose_success", "greater")]
+
+
+def _oriented(name: str) -> bool | None:
+    return DETECTORS[name].orientation if name in DETECTORS else None
+
+
+def oriented_detectors_win_absolute(d):
+    data = d["table5_absolute"]
+    entries = _pairings(data, ["absolute"])
+    best = {}
+    for det in {k.split("-")[0] for k in entries}:
+        mine = {k: v for k, v in entries.items() if k.split("-")[0] == det}
+        best[det] = mine[_best(data, mine, "pose_success")] if _best(data, mine, "pose_success") else None
+    oriented = [v for k, v in best.items() if v is not None and _oriented(k)]
+    unoriented = [v for k, v in best.items() if v is not None and _oriented(k) is False]
     if not oriented or not unoriented:
-        return None, ""
-    mean_o, mean_u = best[oriented].mean(), best[unoriented].mean()
-    return bool(mean_o > mean_u), (f"mean best pairing: oriented {mean_o:.2f}, unoriented {mean_u:.2f}; "
-                                   f"best unoriented {best[unoriented].idxmax()} {best[unoriented].max():.2f}")
+        return data, []
+    return data, [("best pairing per detector, oriented vs unoriented", pd.concat(oriented),
+                   pd.concat(unoriented), "pose_success", "greater")]
 
 
-def nms_beats_other_selectors(frames):
-    rep = _detection(frames.get("table2_selectors"), "repeatability")
-    if rep.empty or not {"nms", "anms", "bucketing"} <= set(rep.columns):
-        return None, ""
-    nms_best = rep["nms"] >= rep[["anms", "bucketing"]].max(axis=1) - TIE
-    others = [d for d in rep.index if d != "mser"]
-    mser = bool(rep.loc["mser", "anms"] >= rep.loc["mser", ["nms", "bucketing"]].max() - TIE) \
-        if "mser" in rep.index else None
-    exceptions = [d for d in others if not nms_best[d]]
-    return (not exceptions and mser is not False), f"NMS best for {len(others) - len(exceptions)}/{len(others)} " \
-        f"detectors" + (f" (not: {', '.join(exceptions)})" if exceptions else "") + (
-            f"; ANMS best for MSER: {mser}" if mser is not None else "")
+def unoriented_collapse_absolute(d):
+    """Unoriented detectors with ORB/BRIEF/LATCH/SIFT vs the same detectors' other pairings on absolute pairs."""
+    data = d["table5_absolute"]
+    entries = _pairings(data, ["absolute"])
+    plain = ("orb", "brief", "latch", "sift")
+    named = [v for k, v in entries.items() if _oriented(k.split("-")[0]) is False and k.split("-")[1] in plain]
+    oriented = [v for k, v in entries.items() if _oriented(k.split("-")[0]) and k.split("-")[1] in plain]
+    if not named or not oriented:
+        return data, []
+    return data, [("unoriented vs oriented detectors with ORB/BRIEF/LATCH/SIFT", pd.concat(named),
+                   pd.concat(oriented), "pose_success", "less")]
 
 
-def selection_hurts_dense_detectors(frames):
-    """MSER, FAST, AGAST and BRISK repeat better without selection than with NMS (Table 2)."""
-    rep = _detection(frames.get("table2_selectors"), "repeatability")
-    if rep.empty or not {"none", "nms"} <= set(rep.columns):
-        return None, ""
-    dense = [d for d in ("mser", "fast", "agast", "brisk") if d in rep.index]
-    if not dense:
-        return None, ""
-    better = [d for d in dense if rep.loc[d, "none"] > rep.loc[d, "nms"] + TIE]
-    return len(better) == len(dense), ", ".join(f"{d} {rep.loc[d, 'none']:.2f} vs NMS {rep.loc[d, 'nms']:.2f}"
-                                                for d in dense)
+def sift_best_on_synthetic(d):
+    data = d["table6_pairings"]
+    entries = _pairings(data, SYNTHETIC)
+    rival = _best(data, {k: v for k, v in entries.items() if k != "sift-sift"}, "pose_success")
+    if "sift-sift" not in entries or rival is None:
+        return data, []
+    return data, [(f"sift-sift vs {rival}", entries["sift-sift"], entries[rival], "pose_success", "greater")]
 
 
-def best_repeatability(frames):
-    """SIFT, AKAZE and SURF have the best repeatability (Table 3)."""
-    rep = _best_selector(frames.get("table3_detectors"), "repeatability")
-    if len(rep) < 4 or not {"sift", "akaze", "surf"} <= set(rep.index):
-        return None, ""
-    top = rep.sort_values(ascending=False)
-    third = top.iloc[2]
-    holds = all(rep[d] >= third - TIE for d in ("sift", "akaze", "surf"))
-    return holds, "top: " + ", ".join(f"{d} {v:.2f}" for d, v in top.iloc[:4].items())
+def precision_tracks_success(d):
+    """Spearman over pairings: rho(precision, success) - rho(correct matches, success) > 0."""
+    data = d["table6_pairings"]
+    entries = _pairings(data, SYNTHETIC)
+    if len(entries) < 3:
+        return data, None
+    values = pd.DataFrame({k: {m: data.value(v, m) for m in ("pose_success", "precision", "n_correct")}
+                           for k, v in entries.items()}).T
+    result = statistics.correlation_difference(values["precision"], values["n_correct"], values["pose_success"],
+                                               confidence=1 - data.alpha)
+    return data, result
 
 
-def sift_ambiguous(frames):
-    """SIFT's ambiguity is large, about 1.5: several orientations at one location (Table 3)."""
-    amb = _best_selector(frames.get("table3_detectors"), "ambiguity")
-    if "sift" not in amb or len(amb) < 2:
-        return None, ""
-    return bool(amb["sift"] >= 1.3 and amb["sift"] > amb.median()), (
-        f"SIFT {amb['sift']:.2f}; median detector {amb.median():.2f}; largest {amb.idxmax()} {amb.max():.2f}")
+def _by_count(d):
+    data = d["table7_reference_features"]
+    cells = data.select(["incremental"])
+    if cells.empty or "by_reference_count" not in cells:
+        return data, cells, []
+    cells = cells[cells["by_reference_count"].notna()]
+    counts = sorted({float(c) for r in cells["by_reference_count"] for c in r})
+    return data, cells, counts
 
 
-def low_ambiguity_detectors(frames):
-    """SURF, CenSurE and AKAZE have among the best (lowest) ambiguity scores (Table 3)."""
-    amb = _best_selector(frames.get("table3_detectors"), "ambiguity")
-    named = [d for d in ("surf", "censure", "akaze") if d in amb]
-    if not named or len(amb) < 4:
-        return None, ""
-    median = amb.median()
-    return all(amb[d] <= median + TIE for d in named), (
-        ", ".join(f"{d} {amb[d]:.2f}" for d in named) + f"; median detector {median:.2f}")
+def _at(cells: pd.DataFrame, count: float) -> pd.DataFrame:
+    """Cells with the success at ``count`` reference features as their value (for the point estimate)."""
+    return cells.assign(pose_success=[next((v.get("pose_success") for k, v in r.items() if float(k) == count),
+                                           math.nan) for r in cells["by_reference_count"]])
 
 
-def precision_tracks_success(frames):
-    """Across pairings, precision follows pose success more closely than the number of correct matches (Table 6)."""
-    part = _ok(frames.get("table6_pairings"))
-    if part.empty or "n_correct" not in part:
-        return None, ""
-    means = part[part["transform"].isin(SYNTHETIC)].groupby(["detector", "descriptor"])[
-        ["pose_success", "precision", "n_correct"]].mean()
-    if len(means) < 3:
-        return None, ""
-    rho = means.corr(method="spearman")["pose_success"]
-    return bool(rho["precision"] > rho["n_correct"]), (
-        f"Spearman with success: precision {rho['precision']:.2f}, correct matches {rho['n_correct']:.2f}")
+def few_references_fail(d):
+    data, cells, counts = _by_count(d)
+    if not {100.0, 1000.0} <= set(counts):
+        return data, [], None, None
+    return (data, [("100 vs 1000 reference features", _at(cells, 100.0), _at(cells, 1000.0), "pose_success",
+                    "less")], {"reference_count": 100.0}, {"reference_count": 1000.0})
 
 
-def _by_count(frames) -> pd.DataFrame:
-    """Pose success per pairing (rows) and reference feature count (columns), Table 7."""
-    part = _ok(frames.get("table7_reference_features"))
-    if part.empty or "by_reference_count" not in part:
-        return pd.DataFrame()
-    rows = {(r.detector, r.descriptor): {float(k): v.get("pose_success") for k, v in r.by_reference_count.items()}
-            for r in part[part["by_reference_count"].notna()].itertuples()}
-    return pd.DataFrame.from_dict(rows, orient="index").sort_index(axis=1)
-
-
-def success_saturates(frames):
-    """For the best half of the pairings, success grows by at most 0.05 beyond 500 reference features."""
-    table = _by_count(frames)
-    if table.empty or 500.0 not in table or table.columns.max() <= 500.0:
-        return None, ""
-    top = table.columns.max()
-    best = table[table[top] >= table[top].median()]
-    gains = best[top] - best[500.0]
-    worst = gains.idxmax()
-    return bool(gains.max() <= 0.05 + TIE), f"largest gain from 500 to {top:.0f} features: {_pair(worst)} " \
-        f"+{gains.max():.2f}"
-
-
-def few_references_fail(frames):
-    """With 100 reference features success is clearly lower than with 1000 (N = 100 for < N KPs, Table 7)."""
-    table = _by_count(frames)
-    if table.empty or not {100.0, 1000.0} <= set(table.columns):
-        return None, ""
-    at_100, at_1000 = table[100.0].mean(), table[1000.0].mean()
-    return bool(at_100 < at_1000 - 0.1), f"mean success {at_100:.2f} at 100, {at_1000:.2f} at 1000 features"
+def success_saturates(d):
+    """For the best half of the pairings, success at the largest count vs at 500: the gain's interval lies below
+    :data:`MARGIN`."""
+    data, cells, counts = _by_count(d)
+    if 500.0 not in counts or max(counts) <= 500.0:
+        return data, [], None, None
+    top = max(counts)
+    at_top = _at(cells, top)
+    best = at_top[at_top["pose_success"] >= at_top["pose_success"].median()]
+    return (data, [(f"{top:.0f} vs 500 features, best half", best, _at(cells.loc[best.index], 500.0),
+                    "pose_success", "within")], {"reference_count": top}, {"reference_count": 500.0})
 
 
 FINDINGS = [
@@ -211,7 +298,7 @@ FINDINGS = [
     ("SIFT's ambiguity is large, about 1.5 (Table 3)", sift_ambiguous),
     ("SURF, CenSurE and AKAZE have among the lowest ambiguity (Table 3)", low_ambiguity_detectors),
     ("CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)", censure_best_incremental),
-    ("Unoriented detectors with ORB/BRIEF/LATCH/SIFT collapse to ~10 % on absolute pairs (Table 5)",
+    ("Unoriented detectors with ORB/BRIEF/LATCH/SIFT collapse on absolute pairs (Table 5)",
      unoriented_collapse_absolute),
     ("Detectors with orientation outperform the others on absolute pairs (Table 5)", oriented_detectors_win_absolute),
     ("SIFT is best under severe synthetic transforms (Table 6)", sift_best_on_synthetic),
@@ -221,10 +308,29 @@ FINDINGS = [
 ]
 
 
-def check_findings(frames: dict[str, pd.DataFrame]) -> list[tuple[str, str, str]]:
-    """``(finding, verdict, evidence)`` for each survey finding."""
-    out = []
-    for text, check in FINDINGS:
-        holds, evidence = check(frames)
-        out.append((text, "not measured" if holds is None else ("holds" if holds else "does not hold"), evidence))
-    return out
+def check(text: str, finding, frames: dict, views: dict, alpha: float) -> Finding:
+    """One finding on the presets' cells (``frames``) and per-view rows (``views``), by preset."""
+    data = {name: Data(frames.get(name), views.get(name), alpha) for name in
+            ("table2_selectors", "table3_detectors", "table4_incremental", "table5_absolute", "table6_pairings",
+             "table7_reference_features")}
+    out = finding(data)
+    if finding is precision_tracks_success:
+        source, result = out
+        if result is None:
+            return Finding(text, NOT_MEASURED)
+        if not math.isfinite(result.difference):
+            return Finding(text, statistics.INCONCLUSIVE, result.test,
+                           f"undefined: a quantity ties across all {result.n} pairings")
+        return Finding(text, statistics.verdict(result, alpha), result.test,
+                       f"rho(precision, success) - rho(correct matches, success) = {result.difference:+.2f}, "
+                       f"{1 - alpha:.0%} CI [{result.low:+.2f}, {result.high:+.2f}], {result.n} pairings")
+    source, parts, *where = out if len(out) == 4 else (*out, None, None)
+    if not parts:
+        return Finding(text, NOT_MEASURED)
+    verdict, test, evidence = _judge(source, parts, *where)
+    return Finding(text, verdict, test, evidence)
+
+
+def check_findings(frames: dict[str, pd.DataFrame], views: dict | None = None, alpha: float = 0.05) -> list[Finding]:
+    """Every survey finding on a reproduction: ``frames`` and ``views`` by preset name."""
+    return [check(text, finding, frames, views or {}, alpha) for text, finding in FINDINGS]

@@ -2,6 +2,9 @@
 features (survey Table 7 as curves), and detector x descriptor heat maps of pose success (Tables 4 and 5). Which
 metrics, their axes and ranges come from :mod:`gtsweep.evaluation.schema`.
 
+With the cells' per-view rows, each point of a curve gets its 95 % interval as a shaded band
+(:func:`gtsweep.report.samples.estimate`).
+
 Methods often score the same (pose success 1.0 at small rotations): each line gets its own marker and dash pattern
 and a small sideways offset, so that lines lying on top of each other stay visible."""
 from __future__ import annotations
@@ -14,9 +17,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 
 from gtsweep.evaluation import schema  # noqa: E402
 from gtsweep.report.labels import label  # noqa: E402
+from gtsweep.report.samples import Views, estimate  # noqa: E402
 
 STRENGTH_AXIS = {"rotation": "rotation angle (deg)", "translation": "IoU of reference and test masks",
                  "noise": "noise sigma", "gamma": "gamma"}
@@ -36,23 +41,39 @@ def _steps(by_step: dict, metric: str):
 
 MARKERS = "osD^vP*Xph<>"
 DASHES = ["-", "--", "-.", ":"]
+BANDS = "; bands: 95 % intervals"
 SPREAD = 0.05  # the lines' sideways offsets span this share of the x range (of its decades on a log axis)
 
 
-def _plot_lines(ax, cells: list[dict], step_key: str, metric: str, log_x: bool = False) -> None:
-    """One line per cell, each with its own marker and dashes and a small offset along x (a factor on log x)."""
-    series = [(_series_name(s["methods"]), *_steps(s[f"by_{step_key}"], metric)) for s in cells]
-    series = [(name, xs, ys) for name, xs, ys in sorted(series) if xs]
-    every = [x for _, xs, _ in series for x in xs]
+def _band(cell: dict, step_key: str, metric: str, xs, views: Views | None):
+    """The 95 % interval of ``metric`` at each step of a cell, from its per-view rows (None without them)."""
+    if not views or cell.get("key") not in views:
+        return None
+    row = pd.DataFrame([{"key": cell["key"], "transform": cell["methods"]["transform"], metric: np.nan}])
+    ends = [estimate(row, metric, views, {step_key: x})[1:] for x in xs]
+    return None if all(np.isnan(low) for low, _ in ends) else ([e[0] for e in ends], [e[1] for e in ends])
+
+
+def _plot_lines(ax, cells: list[dict], step_key: str, metric: str, log_x: bool = False,
+                views: Views | None = None) -> None:
+    """One line per cell, each with its own marker and dashes and a small offset along x (a factor on log x), and
+    its interval as a band when the per-view rows are given."""
+    series = [(_series_name(s["methods"]), *_steps(s[f"by_{step_key}"], metric), s) for s in cells]
+    series = [(name, xs, ys, s) for name, xs, ys, s in sorted(series, key=lambda t: t[0]) if xs]
+    every = [x for _, xs, _, _ in series for x in xs]
     if not every:
         return
     low, high = (np.log10(min(every)), np.log10(max(every))) if log_x else (min(every), max(every))
     width = (high - low) or 1.0
-    for i, (name, xs, ys) in enumerate(series):
+    for i, (name, xs, ys, cell) in enumerate(series):
+        band = _band(cell, step_key, metric, xs, views)
         shift = (i - (len(series) - 1) / 2) * SPREAD * width / max(len(series) - 1, 1)
         xs = [x * 10 ** shift for x in xs] if log_x else [x + shift for x in xs]
-        ax.plot(xs, ys, marker=MARKERS[i % len(MARKERS)], linestyle=DASHES[i % len(DASHES)], linewidth=1.2,
-                markersize=5, markerfacecolor="none" if i % 2 else None, alpha=0.85, label=name)
+        (line,) = ax.plot(xs, ys, marker=MARKERS[i % len(MARKERS)], linestyle=DASHES[i % len(DASHES)],
+                          linewidth=1.2, markersize=5, markerfacecolor="none" if i % 2 else None, alpha=0.85,
+                          label=name)
+        if band is not None:
+            ax.fill_between(xs, *band, color=line.get_color(), alpha=0.12, linewidth=0)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     if len(series) > 1:
         ax.annotate("lines offset sideways\nto stay visible", xy=(1.01, 0.0), xycoords="axes fraction", fontsize=7,
@@ -84,7 +105,7 @@ def _by_headline(summaries: list[dict], step_key: str) -> dict[str, list[dict]]:
     return groups
 
 
-def plot_strength_curves(summaries: list[dict], out_dir: Path) -> list[Path]:
+def plot_strength_curves(summaries: list[dict], out_dir: Path, views: Views | None = None) -> list[Path]:
     """One figure per transform and metric (the schema's curves of each cell's experiment), a line per method."""
     groups = defaultdict(list)
     for s in summaries:
@@ -94,24 +115,24 @@ def plot_strength_curves(summaries: list[dict], out_dir: Path) -> list[Path]:
     files = []
     for (transform, metric), cells in sorted(groups.items()):
         fig, ax = plt.subplots(figsize=(9, 4.5))
-        _plot_lines(ax, cells, "strength", metric)
+        _plot_lines(ax, cells, "strength", metric, views=views)
         ax.set(xlabel=STRENGTH_AXIS.get(transform, "strength"), ylabel=_axis(metric),
-               title=f"{metric}: {transform} ({_views(cells)} views per cell)")
+               title=f"{metric}: {transform} ({_views(cells)} views per cell{BANDS if views else ''})")
         _bound(ax, metric)
         ax.grid(alpha=0.3)
         files.append(_save(fig, out_dir / f"{metric}_vs_{transform}.png"))
     return files
 
 
-def plot_reference_counts(summaries: list[dict], out_dir: Path) -> list[Path]:
+def plot_reference_counts(summaries: list[dict], out_dir: Path, views: Views | None = None) -> list[Path]:
     """Survey Table 7 as curves: the headline metric (pose success) against the number of reference features."""
     files = []
     for metric, cells in sorted(_by_headline(summaries, "reference_count").items()):
         fig, ax = plt.subplots(figsize=(9, 4.5))
-        _plot_lines(ax, cells, "reference_count", metric, log_x=True)
+        _plot_lines(ax, cells, "reference_count", metric, log_x=True, views=views)
         ax.set_xscale("log")
         ax.set(xlabel="reference features", ylabel=_axis(metric),
-               title=f"{metric} against reference features ({_views(cells)} pairs per cell)")
+               title=f"{metric} against reference features ({_views(cells)} pairs per cell{BANDS if views else ''})")
         _bound(ax, metric)
         ax.grid(alpha=0.3, which="both")
         files.append(_save(fig, out_dir / f"{_stem(metric)}_vs_reference_features.png"))
@@ -157,10 +178,11 @@ def _views(cells: list[dict]) -> str:
     return str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}–{max(counts)}"
 
 
-def write_plots(summaries: list[dict], out_dir: str | Path) -> list[Path]:
+def write_plots(summaries: list[dict], out_dir: str | Path, views: Views | None = None) -> list[Path]:
+    """Every plot of the cells into ``out_dir``; ``views`` (the cells' per-view rows) adds the interval bands."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    return [*plot_strength_curves(summaries, out_dir), *plot_reference_counts(summaries, out_dir),
+    return [*plot_strength_curves(summaries, out_dir, views), *plot_reference_counts(summaries, out_dir, views),
             *plot_success_heatmaps(summaries, out_dir)]
 
 

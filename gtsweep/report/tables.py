@@ -1,18 +1,20 @@
 """Rebuild the survey's tables from a sweep, with the paper's number beside ours: ``python -m gtsweep.report``.
 
 Each table is built from whatever cells a sweep has (its result files, or its MLflow runs) and printed in the
-paper's layout: a cell reads ``ours (paper)``; ``NA`` marks a pairing that cannot be evaluated. Detection metrics
-are averaged with equal weight per transform type, as in the survey (section 5). Tables are written as Markdown,
-LaTeX and CSV, next to the plots of :mod:`gtsweep.report.plots`; ``cells`` lists every cell with each metric
-that :mod:`gtsweep.evaluation.schema` marks as reported.
+paper's layout: a cell reads ``ours ±half-width (paper)``, the half-width of our 95 % interval (Wilson for a success
+rate, a seeded bootstrap over images otherwise; :mod:`gtsweep.report.samples`); ``NA`` marks a pairing that cannot
+be evaluated. Detection metrics are averaged with equal weight per transform type, as in the survey (section 5).
+Below each table: the best entry and those statistically tied with it (a paired test against the best at
+``--alpha``). Tables are written as Markdown, LaTeX and CSV (``<table>_values.csv``: the numbers, each interval's
+ends and the paper's number in columns), next to the plots of :mod:`gtsweep.report.plots`; ``cells`` lists every
+cell with each metric that :mod:`gtsweep.evaluation.schema` marks as reported. ``--by texture`` adds every table
+per texture and the synthetic results per transform and strength (:mod:`gtsweep.report.breakdown`).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -23,18 +25,24 @@ from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.results import summary_table
 from gtsweep.report.labels import paper_label, shown_label
+from gtsweep.report.samples import Ties, Views, estimate, tied_with_best
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
 METHODS = ("detector", "selector", "descriptor", "transform")
+ALPHA = 0.05  # significance level of the paired tests (report.alpha)
+BY = (None, "texture")  # report.by
 
 
 def paper(name: str) -> pd.DataFrame:
     return pd.read_csv(PAPER_DIR / name, keep_default_na=False)
 
 
-def fmt(ours: float, theirs=None, digits: int = 2) -> str:
-    """``ours (paper)`` with the same number of digits; NA where ours is missing."""
+def fmt(ours: float, theirs=None, digits: int = 2, low: float = math.nan, high: float = math.nan) -> str:
+    """``ours ±half-width (paper)`` with the same number of digits (the half-width of the interval [low, high]
+    when there is one); NA where ours is missing."""
     text = "NA" if _missing(ours) else f"{ours:.{digits}f}"
+    if text != "NA" and not (_missing(low) or _missing(high)):
+        text += f" ±{(high - low) / 2:.{digits}f}"
     if _missing(theirs) or theirs == "":
         return text
     try:
@@ -42,6 +50,10 @@ def fmt(ours: float, theirs=None, digits: int = 2) -> str:
     except ValueError:
         theirs = str(theirs)
     return text if text == theirs == "NA" else f"{text} ({theirs})"
+
+
+def _number(value) -> float:
+    return math.nan if value is None else float(value)
 
 
 def _missing(value) -> bool:
@@ -52,14 +64,27 @@ def _missing(value) -> bool:
 class Table:
     name: str
     title: str
-    cells: pd.DataFrame  # strings as shown: "ours (paper)"
+    cells: pd.DataFrame  # strings as shown: "ours ±half-width (paper)"
+    values: list[dict] = field(default_factory=list)  # the numbers: row, column, ours, ci_low, ci_high, paper
+    ties: Ties | None = None
 
     def markdown(self) -> str:
         frame = self.cells.reset_index()
         header = [str(c) for c in frame.columns]
         lines = [f"**{self.title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
+        if self.ties is not None and self.ties.describe():
+            lines += ["", f"*{self.ties.describe()}*"]
         return "\n".join(lines)
+
+    def show(self, row: str, column: str, cells: pd.DataFrame, metric: str, paper_value=None, digits: int = 2,
+             views: Views | None = None, where=None) -> str:
+        """The text of one entry made of ``cells`` (value ± half-width (paper)); its numbers go to ``values``."""
+        value, low, high = estimate(cells, metric, views, where)
+        theirs = None if _missing(paper_value) or paper_value == "" else paper_value
+        self.values.append({"row": row, "column": column, "metric": metric, "ours": value, "ci_low": low,
+                            "ci_high": high, "paper": theirs})
+        return fmt(value, theirs, digits, low, high)
 
     def latex(self) -> str:
         body = self.cells.reset_index().to_latex(index=False, escape=True)
@@ -78,7 +103,8 @@ def frame(summaries: list[dict]) -> pd.DataFrame:
     """:func:`~gtsweep.orchestration.results.summary_table` plus each cell's success per reference count (Table 7)
     and its number of views (pairs for real pairs; summaries from before it was recorded: their rows)."""
     return summary_table(summaries).assign(by_reference_count=[s.get("by_reference_count") for s in summaries],
-                                           n_views=[s.get("n_views", s.get("n_rows")) for s in summaries])
+                                           n_views=[s.get("n_views", s.get("n_rows")) for s in summaries],
+                                           key=[s.get("key") for s in summaries])
 
 
 def sample_note(part: pd.DataFrame) -> str:
@@ -100,21 +126,38 @@ def _ok(df: pd.DataFrame, metric: str) -> pd.Series:
     return values.where(df["status"] == "ok")
 
 
-def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str, title: str) -> Table | None:
+def _evaluated(df: pd.DataFrame) -> pd.DataFrame:
+    return df[df["status"] == "ok"]
+
+
+def _pair_label(detector: str, descriptor: str) -> str:
+    return f"{shown_label(detector)}-{shown_label(descriptor)}"
+
+
+def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str, title: str,
+                   views: Views | None = None, alpha: float = ALPHA) -> Table | None:
     part = df[(df["transform"] == transform) & df["descriptor"].notna()]
     part = part[part["by_reference_count"].isna()] if "by_reference_count" in part else part
     if part.empty:
         return None
     theirs = paper(paper_file).set_index("detector")
-    success = part.assign(value=_ok(part, "pose_success"))
-    detectors = _order(success["detector"].unique(), theirs.index)
-    descriptors = _order(success["descriptor"].unique(), theirs.columns)
+    detectors = _order(part["detector"].unique(), theirs.index)
+    descriptors = _order(part["descriptor"].unique(), theirs.columns)
     grid = pd.DataFrame(index=[shown_label(d) for d in detectors], columns=[shown_label(s) for s in descriptors])
-    for row in success.groupby(["detector", "descriptor"], sort=False)["value"].mean().reset_index().itertuples():
-        p = _lookup(theirs, paper_label(row.detector), paper_label(row.descriptor))
-        grid.loc[shown_label(row.detector), shown_label(row.descriptor)] = fmt(row.value, p)
+    table = Table(name, f"{title} ({sample_note(part)})", grid)
+    entries = {}
+    for (det, desc), cells in part.groupby(["detector", "descriptor"], sort=False):
+        p = _lookup(theirs, paper_label(det), paper_label(desc))
+        ok = _evaluated(cells)
+        grid.loc[shown_label(det), shown_label(desc)] = table.show(shown_label(det), shown_label(desc), ok,
+                                                                    "pose_success", p, views=views) \
+            if len(ok) else fmt(math.nan, p)
+        if len(ok):
+            entries[_pair_label(det, desc)] = ok
     grid.index.name = "detector"
-    return Table(name, f"{title} ({sample_note(part)})", grid.fillna(""))
+    table.cells = grid.fillna("")
+    table.ties = tied_with_best(entries, "pose_success", views, alpha)
+    return table
 
 
 def _order(names, paper_order) -> list[str]:
@@ -137,7 +180,12 @@ def _detection(df: pd.DataFrame) -> pd.DataFrame:
     return part.groupby(["detector", "selector"])[metrics].mean()
 
 
-def table_selectors(df: pd.DataFrame) -> Table | None:
+def _detection_cells(df: pd.DataFrame, detector: str, selector: str) -> pd.DataFrame:
+    return df[df["descriptor"].isna() & (df["status"] == "ok") & (df["detector"] == detector)
+              & (df["selector"] == selector)]
+
+
+def table_selectors(df: pd.DataFrame, views: Views | None = None, alpha: float = ALPHA) -> Table | None:
     """Survey Table 2: repeatability of every selector-detector pairing, keypoints before selection."""
     detection = _detection(df)
     if detection.empty or detection.index.get_level_values("selector").nunique() < 2:
@@ -146,19 +194,26 @@ def table_selectors(df: pd.DataFrame) -> Table | None:
     columns = {"none": "rep_no_selection", "nms": "rep_nms", "anms": "rep_anms", "bucketing": "rep_bucketing"}
     detectors = _order(detection.index.get_level_values("detector").unique(), theirs.index)
     out = pd.DataFrame(index=[shown_label(d) for d in detectors])
+    table = Table("table2_selectors", f"Survey Table 2: repeatability of selector-detector pairings "
+                                      f"({sample_note(df[df['descriptor'].isna()])})", out)
+    entries = {}
     for d in detectors:
         p = theirs.loc[paper_label(d)] if paper_label(d) in theirs.index else {}
         counts = detection.loc[d, "n_detected"] if "n_detected" in detection else pd.Series(dtype=float)
         out.loc[shown_label(d), "#KPs before selection"] = fmt(counts.mean(), p.get("kps_before_selection"), 0)
         for selector, column in columns.items():
-            value = detection.loc[(d, selector), "repeatability"] if (d, selector) in detection.index else math.nan
-            out.loc[shown_label(d), f"Rep. {selector}"] = fmt(value, p.get(column))
+            cells = _detection_cells(df, d, selector)
+            out.loc[shown_label(d), f"Rep. {selector}"] = table.show(
+                shown_label(d), f"Rep. {selector}", cells, "repeatability", p.get(column), views=views) \
+                if len(cells) else fmt(math.nan, p.get(column))
+            if len(cells):
+                entries[f"{shown_label(d)} {selector.upper()}"] = cells
     out.index.name = "detector"
-    return Table("table2_selectors", f"Survey Table 2: repeatability of selector-detector pairings "
-                                     f"({sample_note(df[df['descriptor'].isna()])})", out)
+    table.ties = tied_with_best(entries, "repeatability", views, alpha)
+    return table
 
 
-def table_detectors(df: pd.DataFrame) -> Table | None:
+def table_detectors(df: pd.DataFrame, views: Views | None = None, alpha: float = ALPHA) -> Table | None:
     """Survey Table 3: per detector with its best selector, < 100 KPs, repeatability, ambiguity, time."""
     detection = _detection(df)
     detection = detection[detection.index.get_level_values("selector") != "none"]
@@ -166,67 +221,87 @@ def table_detectors(df: pd.DataFrame) -> Table | None:
         return None
     text = paper("table3_text.csv")
     best = detection.reset_index().sort_values("repeatability", ascending=False).groupby("detector").head(1)
-    out = []
+    table = Table("table3_detectors", "", pd.DataFrame())
+    out, entries = [], {}
     for row in best.sort_values("repeatability", ascending=False).itertuples():
         said = {r.metric: r.value for r in text[text["detector"] == paper_label(row.detector)].itertuples()}
-        out.append({"detector": shown_label(row.detector), "selector": row.selector.upper(),
-                    "< 100 KPs": fmt(row.few_keypoints, said.get("few_keypoints")),
-                    "repeatability": fmt(row.repeatability, said.get("repeatability")),
-                    "ambiguity": fmt(row.ambiguity, said.get("ambiguity")),
-                    "time (s)": fmt(row.t_detect, None, 3)})
-    table = pd.DataFrame(out).set_index("detector")
+        cells, shown = _detection_cells(df, row.detector, row.selector), shown_label(row.detector)
+        entries[shown] = cells
+        record = {"detector": shown, "selector": row.selector.upper()}
+        for column, metric in (("< 100 KPs", "few_keypoints"), ("repeatability", "repeatability"),
+                               ("ambiguity", "ambiguity")):
+            record[column] = table.show(shown, column, cells, metric, said.get(metric), views=views)
+        record["time (s)"] = fmt(row.t_detect, None, 3)
+        out.append(record)
     used = df[df["descriptor"].isna() & (df["status"] == "ok") & (df["selector"] != "none")]
-    return Table("table3_detectors", f"Survey Table 3: detectors, best selector ({sample_note(used)})", table)
+    table.title = f"Survey Table 3: detectors, best selector ({sample_note(used)})"
+    table.cells = pd.DataFrame(out).set_index("detector")
+    table.ties = tied_with_best(entries, "repeatability", views, alpha)
+    return table
 
 
-def table_pairings(df: pd.DataFrame) -> Table | None:
-    """Survey Table 6: pairings on synthetic transforms: success, correct matches, precision."""
+def table_pairings(df: pd.DataFrame, views: Views | None = None, alpha: float = ALPHA) -> Table | None:
+    """Survey Table 6: pairings on synthetic transforms: success, correct matches, precision (pooled)."""
     part = df[df["transform"].isin(list(TRANSFORMS)) & df["descriptor"].notna() & (df["status"] == "ok")]
     if part.empty:
         return None
     theirs = paper("table6_pairings_synthetic.csv").set_index(["detector", "descriptor"])
-    columns = ["pose_success", "n_correct", "precision"]  # a matching sweep has no pose_success: NA
-    means = part.groupby(["detector", "descriptor"])[[c for c in columns if c in part]].mean().reindex(columns=columns)
-    out = []
-    for (det, desc), row in means.sort_values("pose_success", ascending=False).iterrows():
+    table = Table("table6_pairings", f"Survey Table 6: pairings on synthetic transforms ({sample_note(part)})",
+                  pd.DataFrame())
+    success = part.assign(value=_ok(part, "pose_success")).groupby(["detector", "descriptor"])["value"].mean()
+    out, entries = [], {}
+    for det, desc in success.sort_values(ascending=False).index:
         key = (paper_label(det), paper_label(desc))
         p = theirs.loc[key] if key in theirs.index else {}
-        out.append({"detector": shown_label(det), "descriptor": shown_label(desc),
-                    "pose success": fmt(row.pose_success, p.get("pose_success")),
-                    "#correct matches": fmt(row.n_correct, p.get("correct_matches"), 0),
-                    "precision": fmt(row.precision, p.get("precision"))})
-    return Table("table6_pairings", f"Survey Table 6: pairings on synthetic transforms ({sample_note(part)})",
-                 pd.DataFrame(out).set_index("detector"))
+        cells, row = part[(part["detector"] == det) & (part["descriptor"] == desc)], shown_label(det)
+        entries[_pair_label(det, desc)] = cells
+        out.append({"detector": row, "descriptor": shown_label(desc),
+                    "pose success": table.show(row, "pose success", cells, "pose_success", p.get("pose_success"),
+                                               views=views),
+                    "#correct matches": table.show(row, "#correct matches", cells, "n_correct",
+                                                   p.get("correct_matches"), 0, views),
+                    "precision": table.show(row, "precision", cells, "precision", p.get("precision"), views=views)})
+    table.cells = pd.DataFrame(out).set_index("detector")
+    table.ties = tied_with_best(entries, "pose_success", views, alpha)
+    return table
 
 
-def table_reference_counts(df: pd.DataFrame) -> Table | None:
+def table_reference_counts(df: pd.DataFrame, views: Views | None = None, alpha: float = ALPHA) -> Table | None:
     """Survey Table 7: success on incremental pairs against the number of reference features."""
     part = df[(df["transform"] == "incremental") & df["by_reference_count"].notna() & (df["status"] == "ok")] \
         if "by_reference_count" in df else df.iloc[0:0]
     if part.empty:
         return None
     theirs = paper("table7_success_vs_reference_features.csv").set_index(["detector", "descriptor"])
-    out = []
-    for row in part.itertuples():
+    table = Table("table7_reference_features", "Survey Table 7: success against number of reference features "
+                  f"({sample_note(part)})", pd.DataFrame())
+    out, entries, top = [], {}, None
+    for index, row in part.iterrows():
         key = (paper_label(row.detector), paper_label(row.descriptor))
         p = theirs.loc[key] if key in theirs.index else {}
         record = {"detector": shown_label(row.detector), "descriptor": shown_label(row.descriptor)}
         for count, values in sorted(row.by_reference_count.items(), key=lambda kv: float(kv[0])):
-            column = str(int(float(count)))
-            record[column] = fmt(values.get("pose_success"), p.get(column))
+            column, top = str(int(float(count))), max(top or 0.0, float(count))
+            cells = part.loc[[index]].assign(pose_success=values.get("pose_success"))
+            record[column] = table.show(record["detector"], column, cells, "pose_success", p.get(column), 2, views,
+                                        {"reference_count": float(count)})
+        entries[_pair_label(row.detector, row.descriptor)] = cells  # at its largest count
         out.append(record)
-    return Table("table7_reference_features", "Survey Table 7: success against number of reference features "
-                 f"({sample_note(part)})", pd.DataFrame(out).set_index("detector"))
+    table.cells = pd.DataFrame(out).set_index("detector")
+    table.ties = tied_with_best(entries, "pose_success", views, alpha, where={"reference_count": top})
+    return table
 
 
 def table_cells(summaries: list[dict]) -> Table | None:
-    """Every cell with each reported schema metric of its experiment: a new metric needs no other edit here."""
+    """Every cell with each reported schema metric of its experiment (± the half-width of the cell's interval where
+    the schema gives one): a new metric needs no other edit here."""
     records = []
     for s in summaries:
         experiment, values = schema.experiment_of(s), s.get("metrics") or {}
         record = {**{k: s["methods"].get(k) or "" for k in METHODS}, "experiment": experiment, "status": s["status"]}
-        record.update({m.name: fmt(values.get(m.name), None, m.digits) for m in schema.metrics_of(experiment)
-                       if m.reported})
+        record.update({m.name: fmt(values.get(m.name), None, m.digits, _number(values.get(f"{m.name}_ci_low")),
+                                   _number(values.get(f"{m.name}_ci_high")))
+                       for m in schema.metrics_of(experiment) if m.reported})
         records.append(record)
     if not records:
         return None
@@ -237,66 +312,34 @@ def table_cells(summaries: list[dict]) -> Table | None:
                  f"({sample_note(frame(summaries))})", cells)
 
 
-def build_tables(summaries: list[dict]) -> list[Table]:
-    """Every survey table that the cells of ``summaries`` can fill."""
+def build_tables(summaries: list[dict], views: Views | None = None, alpha: float = ALPHA) -> list[Table]:
+    """Every survey table that the cells of ``summaries`` can fill; ``views``: the cells' per-view rows (for the
+    intervals and the ties with the best), ``alpha``: the significance level of the paired tests."""
     df = frame(summaries)
     if "descriptor" not in df:
         df["descriptor"] = None
     candidates = [
-        table_selectors(df), table_detectors(df),
+        table_selectors(df, views, alpha), table_detectors(df, views, alpha),
         _pairing_table(df, "incremental", "table4_success_incremental.csv", "table4_incremental",
-                       "Survey Table 4: pose success on incremental pairs"),
+                       "Survey Table 4: pose success on incremental pairs", views, alpha),
         _pairing_table(df, "absolute", "table5_success_absolute.csv", "table5_absolute",
-                       "Survey Table 5: pose success on absolute pairs"),
-        table_pairings(df), table_reference_counts(df),
+                       "Survey Table 5: pose success on absolute pairs", views, alpha),
+        table_pairings(df, views, alpha), table_reference_counts(df, views, alpha),
     ]
     return [t for t in candidates if t is not None]
 
 
-def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True) -> tuple[list[Table], list[Path]]:
-    """Write every survey table and the per-cell table as .md, .tex and .csv (and the plots) into ``out_dir``;
-    returns the survey tables and every file."""
+def write_tables(tables: list[Table], out_dir: str | Path) -> list[Path]:
+    """Each table as .md, .tex and .csv (as shown) and ``<name>_values.csv`` (the numbers) in ``out_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tables, files, cells = build_tables(summaries), [], table_cells(summaries)
-    for table in tables + ([cells] if cells else []):
-        for suffix, text in ((".md", table.markdown()), (".tex", table.latex()), (".csv", table.cells.to_csv())):
+    files = []
+    for table in tables:
+        texts = [(".md", table.markdown()), (".tex", table.latex()), (".csv", table.cells.to_csv())]
+        if table.values:
+            texts.append(("_values.csv", pd.DataFrame(table.values).to_csv(index=False)))
+        for suffix, text in texts:
             path = out_dir / f"{table.name}{suffix}"
             path.write_text(text + ("\n" if not text.endswith("\n") else ""))
             files.append(path)
-    if plots:
-        from gtsweep.report.plots import write_plots
-
-        files += write_plots(summaries, out_dir)
-    return tables, files
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gtsweep.report", description=__doc__.splitlines()[0])
-    parser.add_argument("source", help="a sweep's output directory (it holds cells/ and results.csv), or with "
-                                           "--mlflow the id of a sweep's parent run")
-    parser.add_argument("--mlflow", action="store_true", help="read the cells from MLflow child runs of SOURCE")
-    parser.add_argument("--tracking-uri", help="MLflow store (default: $MLFLOW_TRACKING_URI or ./mlflow.db)")
-    parser.add_argument("--out", help="where to write tables and plots (default: <source>/report, or ./report)")
-    parser.add_argument("--no-plots", action="store_true", help="tables only")
-    args = parser.parse_args(argv)
-    out = Path(args.out or ("report" if args.mlflow else Path(args.source) / "report"))
-    try:
-        if args.mlflow:
-            from gtsweep.tracking.sweep import summaries_from_mlflow
-
-            summaries = summaries_from_mlflow(args.source, args.tracking_uri)
-        else:
-            summaries = load_summaries(args.source)
-        tables, files = write_report(summaries, out, not args.no_plots)
-    except GtsweepError as e:
-        print(f"gtsweep.report: error: {e}", file=sys.stderr)
-        return 2
-    for table in tables:
-        print(table.markdown(), end="\n\n")
-    print(f"{len(files)} files in {out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return files

@@ -235,6 +235,28 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
     return sorted(summaries, key=lambda s: s["key"] or "")
 
 
+def views_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict:
+    """The per-view rows of a sweep's cells (each child run's ``<cell>.csv`` artifact) by cell key, for the
+    report's intervals and paired tests; cells without the artifact are left out."""
+    import tempfile
+
+    import pandas as pd
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri(None) if uri is None else uri)
+    parent = client.get_run(parent_run_id)
+    runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",
+                              max_results=50000)
+    views = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for run in runs:
+            key = run.data.tags.get(CELL_TAG)
+            if not key or not any(a.path == f"{key}.csv" for a in client.list_artifacts(run.info.run_id)):
+                continue
+            views[key] = pd.read_csv(client.download_artifacts(run.info.run_id, f"{key}.csv", tmp))
+    return views
+
+
 def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
     """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
     quiet_mlflow()

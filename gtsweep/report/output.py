@@ -1,0 +1,97 @@
+"""Write a sweep's report, and the report command: ``python -m gtsweep.report <run dir>`` (or ``--mlflow``).
+
+The report (:mod:`gtsweep.report.tables`) holds every survey table the cells can fill, each entry ``ours
+±half-width (paper)`` with the entries tied with the best below it, the per-cell table, the synthetic results per
+transform and strength, and the plots. ``by="texture"`` (``report.by=texture``) adds all of that per texture
+under ``by_texture/<texture>/`` (:mod:`gtsweep.report.breakdown`).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from gtsweep.core.errors import GtsweepError
+from gtsweep.report.breakdown import (
+    strength_table,
+    texture_summaries,
+    texture_views,
+    textures,
+)
+from gtsweep.report.samples import Views, load_views
+from gtsweep.report.tables import (
+    ALPHA,
+    BY,
+    Table,
+    build_tables,
+    load_summaries,
+    table_cells,
+    write_tables,
+)
+
+
+def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots: bool, alpha: float,
+               note: str = "") -> tuple[list[Table], list[Path]]:
+    tables = build_tables(summaries, views, alpha)
+    if note:
+        for table in tables:
+            table.title += note
+    extra = [t for t in (table_cells(summaries), strength_table(summaries, views, note=note)) if t is not None]
+    files = write_tables(tables + extra, out_dir)
+    if plots:
+        from gtsweep.report.plots import write_plots
+
+        files += write_plots(summaries, out_dir, views)
+    return tables, files
+
+
+def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True, views: Views | None = None,
+                 by: str | None = None, alpha: float = ALPHA) -> tuple[list[Table], list[Path]]:
+    """Write every survey table, the per-cell table and the per-strength table as .md, .tex and .csv (and the
+    plots) into ``out_dir``, and with ``by="texture"`` all of them per texture into ``by_texture/<texture>/``;
+    returns the survey tables (over every texture) and every file. ``views``: the cells' per-view rows."""
+    if by not in BY:
+        raise GtsweepError(f"report.by must be one of {', '.join(str(b).lower() for b in BY)}, not {by!r}")
+    out_dir = Path(out_dir)
+    tables, files = _write_set(summaries, views, out_dir, plots, alpha)
+    if by == "texture":
+        if not views:
+            raise GtsweepError("report.by=texture needs the cells' per-view rows (cells/*.csv)")
+        for texture in textures(views):
+            files += _write_set(texture_summaries(summaries, views, texture), texture_views(views, texture),
+                                out_dir / "by_texture" / texture, plots, alpha, f", texture {texture}")[1]
+    return tables, files
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m gtsweep.report", description=__doc__.splitlines()[0])
+    parser.add_argument("source", help="a sweep's output directory (it holds cells/ and results.csv), or with "
+                                       "--mlflow the id of a sweep's parent run")
+    parser.add_argument("--mlflow", action="store_true", help="read the cells (and their per-view rows, the child "
+                                                              "runs' artifacts) from MLflow child runs of SOURCE")
+    parser.add_argument("--tracking-uri", help="MLflow store (default: $MLFLOW_TRACKING_URI or ./mlflow.db)")
+    parser.add_argument("--out", help="where to write tables and plots (default: <source>/report, or ./report)")
+    parser.add_argument("--no-plots", action="store_true", help="tables only")
+    parser.add_argument("--by", choices=["texture"], help="also every table per texture (report.by)")
+    parser.add_argument("--alpha", type=float, default=ALPHA,
+                        help=f"significance level of the paired tests for the ties with the best (default {ALPHA})")
+    args = parser.parse_args(argv)
+    if not 0 < args.alpha < 1:
+        parser.error(f"--alpha must be in (0, 1), not {args.alpha}")
+    out = Path(args.out or ("report" if args.mlflow else Path(args.source) / "report"))
+    try:
+        if args.mlflow:
+            from gtsweep.tracking.sweep import summaries_from_mlflow, views_from_mlflow
+
+            summaries = summaries_from_mlflow(args.source, args.tracking_uri)
+            views = views_from_mlflow(args.source, args.tracking_uri)
+        else:
+            summaries, views = load_summaries(args.source), load_views(args.source)
+        tables, files = write_report(summaries, out, not args.no_plots, views, args.by, args.alpha)
+    except GtsweepError as e:
+        print(f"gtsweep.report: error: {e}", file=sys.stderr)
+        return 2
+    for table in tables:
+        print(table.markdown(), end="\n\n")
+    print(f"{len(files)} files in {out}")
+    return 0
