@@ -27,7 +27,7 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.evaluation.evaluate import detect_raw, select_detected
 
-# The pseudo-selector under which a detector's unselected output is cached.
+# The pseudo-selector under which a detector's unselected output is cached (files raw-<key>.npz).
 RAW = "raw"
 
 
@@ -134,7 +134,7 @@ def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | No
     key = detection_key(image, mask, detector, {"params": detector_params}, selector, {"params": selector_params})
     found = cache.get(key)
     if found is None:
-        raw_key = detection_key(image, mask, detector, {"params": detector_params}, RAW, {})
+        raw_key = f"{RAW}-" + detection_key(image, mask, detector, {"params": detector_params}, RAW, {})
         raw = cache.get(raw_key, count=False)
         if raw is None:
             raw = detect_raw(image, mask, detector, detector_params)

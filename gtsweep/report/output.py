@@ -12,12 +12,14 @@ import sys
 from pathlib import Path
 
 from gtsweep.core.errors import GtsweepError
+from gtsweep.orchestration.results import by_variant
 from gtsweep.report.breakdown import (
     strength_table,
     texture_summaries,
     texture_views,
     textures,
 )
+from gtsweep.report.labels import variant_slug
 from gtsweep.report.samples import Views, load_views
 from gtsweep.report.tables import (
     ALPHA,
@@ -41,7 +43,9 @@ def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots:
     if plots:
         from gtsweep.report.plots import write_plots
 
-        files += write_plots(summaries, out_dir, views)
+        groups = by_variant(summaries)  # with several matchers or estimators, plots per (matcher, estimator)
+        for variant, part in groups.items():
+            files += write_plots(part, out_dir / variant_slug(variant) if len(groups) > 1 else out_dir, views)
     return tables, files
 
 

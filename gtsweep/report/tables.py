@@ -23,8 +23,8 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import PACKAGE_DIR
 from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.orchestration.results import summary_table
-from gtsweep.report.labels import paper_label, shown_label
+from gtsweep.orchestration.results import by_variant, summary_table, swept_variants
+from gtsweep.report.labels import paper_label, shown_label, variant_label, variant_slug
 from gtsweep.report.samples import Ties, Views, estimate, tied_with_best
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
@@ -295,10 +295,11 @@ def table_reference_counts(df: pd.DataFrame, views: Views | None = None, alpha: 
 def table_cells(summaries: list[dict]) -> Table | None:
     """Every cell with each reported schema metric of its experiment (± the half-width of the cell's interval where
     the schema gives one): a new metric needs no other edit here."""
-    records = []
+    records, swept = [], swept_variants(summaries)
     for s in summaries:
         experiment, values = schema.experiment_of(s), s.get("metrics") or {}
-        record = {**{k: s["methods"].get(k) or "" for k in METHODS}, "experiment": experiment, "status": s["status"]}
+        record = {**{k: s["methods"].get(k) or "" for k in (*METHODS, *swept)}, "experiment": experiment,
+                  "status": s["status"]}
         record.update({m.name: fmt(values.get(m.name), None, m.digits, _number(values.get(f"{m.name}_ci_low")),
                                    _number(values.get(f"{m.name}_ci_high")))
                        for m in schema.metrics_of(experiment) if m.reported})
@@ -314,7 +315,17 @@ def table_cells(summaries: list[dict]) -> Table | None:
 
 def build_tables(summaries: list[dict], views: Views | None = None, alpha: float = ALPHA) -> list[Table]:
     """Every survey table that the cells of ``summaries`` can fill; ``views``: the cells' per-view rows (for the
-    intervals and the ties with the best), ``alpha``: the significance level of the paired tests."""
+    intervals and the ties with the best), ``alpha``: the significance level of the paired tests. With several
+    matchers or estimators, each table once per (matcher, estimator), named and titled after it."""
+    groups = by_variant(summaries)
+    if len(groups) == 1:
+        return _survey_tables(summaries, views, alpha)
+    return [Table(f"{t.name}_{variant_slug(variant)}", f"{t.title}; {variant_label(variant)}", t.cells, t.values, t.ties)
+            if variant_slug(variant) else t for variant, part in groups.items()
+            for t in _survey_tables(part, views, alpha)]
+
+
+def _survey_tables(summaries: list[dict], views: Views | None, alpha: float) -> list[Table]:
     df = frame(summaries)
     if "descriptor" not in df:
         df["descriptor"] = None
