@@ -103,6 +103,21 @@ def revisit_weights(law: Mapping) -> tuple[float, float, float]:
     return same, opposite, crossing
 
 
+def revisit_mean(law: Mapping) -> float:
+    """Analytic mean rotation of the revisit law (equals ``rotation_mean`` by construction)."""
+    same, opposite, crossing = revisit_weights(law)
+    m = float(law["heading_noise_deg"]) * math.sqrt(2.0 / math.pi)
+    return same * m + opposite * (180.0 - m) + crossing * 90.0
+
+
+def revisit_share_below(law: Mapping, degrees: float) -> float:
+    """Analytic share of revisit rotations below ``degrees`` (<= 90): same-direction ones within it, crossings."""
+    same, opposite, crossing = revisit_weights(law)
+    noise = float(law["heading_noise_deg"])
+    return float(same * stats.halfnorm.cdf(degrees / noise) + opposite * stats.halfnorm.sf((180 - degrees) / noise)
+                 + crossing * degrees / 180.0)
+
+
 def revisit_magnitudes(u: np.ndarray, law: Mapping) -> np.ndarray:
     """|rotation| (degrees) at quantile levels ``u`` of the revisit law (:func:`revisit_weights`)."""
     same, opposite, crossing = revisit_weights(law)
