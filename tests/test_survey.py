@@ -87,12 +87,19 @@ def test_motion_kernel_blurs_along_travel_without_moving():
 
 
 def test_tilt_is_the_rotation_homography():
+    """A pixel seen along ray d by the tilted camera is seen along R d by the nadir one: K R K^-1, then one shift
+    that keeps the image centre on its floor point."""
     focal, shape = 1562.5, (964, 1288)
-    H = capture.tilt(1.5, 0.0, shape, focal)
-    centre = np.array([643.5, 481.5, 1.0])
-    moved = H @ centre
-    assert moved[1] / moved[2] - 481.5 == pytest.approx(focal * math.tan(math.radians(-1.5)), rel=1e-3) or \
-        moved[1] / moved[2] - 481.5 == pytest.approx(focal * math.tan(math.radians(1.5)), rel=1e-3)
+    H = capture.tilt(1.5, -1.0, shape, focal)
+    K = np.array([[focal, 0, 643.5], [0, focal, 481.5], [0, 0, 1.0]])
+    rotation, _ = cv2.Rodrigues(np.radians([1.5, -1.0, 0.0]))
+    rays = np.column_stack([np.random.default_rng(0).uniform(-0.4, 0.4, (20, 2)), np.ones(20)])
+    tilted, nadir = rays @ K.T, rays @ (K @ rotation).T
+    mapped = tilted @ H.T
+    offsets = mapped[:, :2] / mapped[:, 2:] - nadir[:, :2] / nadir[:, 2:]
+    assert np.ptp(offsets, axis=0) == pytest.approx([0, 0], abs=1e-6)  # one shift for every pixel
+    centre = H @ np.array([643.5, 481.5, 1.0])
+    assert centre[:2] / centre[2] == pytest.approx([643.5, 481.5])
     assert capture.tilt(0.0, 0.0, shape, focal) == pytest.approx(np.eye(3))
     reach = capture.tilt_reach_px(1.5, (1288, 964), focal)
     for pitch, roll in ((1.5, 1.5), (-1.5, 1.5), (1.5, -1.5), (-1.5, -1.5)):

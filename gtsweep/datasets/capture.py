@@ -107,12 +107,18 @@ def tilt(pitch_deg: float, roll_deg: float, shape, focal: float) -> np.ndarray:
     """Homography tilted-view pixel -> nadir-view pixel for a camera rotated by pitch (about x) and roll (about y).
 
     A rotation about the optical centre maps image points by ``K R K^-1`` for any scene, so this is exact; the
-    principal point is the image centre. Normalised so that ``[2, 2] == 1``.
+    principal point is the image centre. The result is then shifted so that the image centre keeps its floor point
+    (the robot stood ``f * tan(tilt)``, a few mm, elsewhere): the layout's overlaps stay as drawn. Normalised so
+    that ``[2, 2] == 1``.
     """
     h, w = shape[:2]
     K = np.array([[focal, 0.0, (w - 1) / 2.0], [0.0, focal, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     rotation, _ = cv2.Rodrigues(np.radians([pitch_deg, roll_deg, 0.0]))
     H = K @ rotation @ np.linalg.inv(K)
+    moved = H @ K[:, 2]
+    shift = np.eye(3)
+    shift[:2, 2] = K[:2, 2] - moved[:2] / moved[2]
+    H = shift @ H
     return H / H[2, 2]
 
 
