@@ -179,3 +179,21 @@ def test_survey_config_is_the_protocol():
     assert synthetic.floor_side("wood", options) >= 4 * 1288
     with pytest.raises(BadInput, match="unknown capture key"):
         survey_options(capture={"shutter": 1})
+
+
+def test_day_effects_and_the_frame_api():
+    rng = np.random.default_rng(0)
+    floor = np.random.default_rng(1).uniform(40, 200, (120, 160)).astype(np.float32)
+    neutral = {"ambient": 0.0, "dust": 0.0, "wear": 0.0, "gamma": 1.0, "ambient_direction_deg": 0.0}
+    assert np.array_equal(capture.day(floor, rng, neutral, 6.25), floor)
+    lit = capture.day(floor, rng, {**neutral, "ambient": 0.2}, 6.25)
+    edge = 79.5 / math.hypot(79.5, 59.5)  # the ramp runs from 0 to 1 between corners: 0.1 / 0.9 at the edges
+    assert lit[:, -1] / floor[:, -1] == pytest.approx(1 + 0.2 * (0.5 + 0.5 * edge), rel=1e-5)
+    assert lit[:, 0] / floor[:, 0] == pytest.approx(1 + 0.2 * (0.5 - 0.5 * edge), rel=1e-5)
+    dusty = capture.day(floor, rng, {**neutral, "dust": 0.01}, 6.25)
+    assert 0.002 < np.mean(dusty != floor) < 0.03
+    params = capture.draw_day(np.random.default_rng(0), capture.DAY_DEFAULTS)
+    assert 0.8 <= params["gamma"] <= 1.25 and 0 <= params["ambient"] <= 0.2
+    image = capture.random_frame(floor, np.random.default_rng(0), capture.FRAME_DEFAULTS, 6.25)
+    again = capture.random_frame(floor, np.random.default_rng(0), capture.FRAME_DEFAULTS, 6.25)
+    assert image.dtype == np.uint8 and image.shape == floor.shape and np.array_equal(image, again)

@@ -199,6 +199,15 @@ def capture(radiance: np.ndarray, rng: np.random.Generator, params: Mapping, opt
     return sensor(image, rng, params, options)
 
 
+def random_frame(radiance: np.ndarray, rng: np.random.Generator, options: Mapping, px_per_mm: float) -> np.ndarray:
+    """:func:`capture` with a frame drawn from ``options`` (:func:`draw_frame`) and a random direction of travel.
+
+    Tilt is not applied here: it changes where pixels lie, so it belongs in the pose (:func:`tilt`), as the data
+    set does; everything else (blur, exposure, lighting, noise) moves no pixel."""
+    params = draw_frame(rng, options)
+    return capture(radiance, rng, params, options, px_per_mm, float(rng.uniform(0.0, 360.0)))
+
+
 def draw_day(rng: np.random.Generator, ranges: Mapping) -> dict[str, float]:
     """One day's parameters from ``ranges`` (keys of :data:`DAY_DEFAULTS`), plus the ambient light's direction."""
     params = {key: float(rng.uniform(*_range(ranges, key))) for key in ("ambient", "dust", "wear")}
@@ -227,7 +236,8 @@ def day(reflectance: np.ndarray, rng: np.random.Generator, params: Mapping, px_p
         specks = (rng.random(shape, dtype=np.float32) < params["dust"] / 4.0).astype(np.float32)
         specks = cv2.dilate(specks, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))
         image = image * (1 - specks) + specks * 230.0  # light gray dust, ~0.5 mm grains
-    image = 255.0 * (np.clip(image, 0, 255) / 255.0) ** params["gamma"]
+    if params["gamma"] != 1.0:
+        image = 255.0 * (np.clip(image, 0, 255) / 255.0) ** params["gamma"]
     if params["ambient"] > 0:  # ambient light: a ramp from 0 to ``ambient`` across the view, any direction
         dx, dy, _ = _radius2(shape)
         angle = math.radians(params["ambient_direction_deg"])

@@ -4,7 +4,9 @@ Pair statistics follow the survey (section 4): incremental pairs ("taken in dire
 average, as little as 1.7 %, with 3 degrees mean rotation; absolute pairs ("taken at different times") overlap
 43.7 % on average with 120 degrees mean rotation. Overlaps are drawn from a Beta distribution with the target
 mean, clipped to [min, max]; rotations |dtheta| = max * u ** (1 / p) with p = mean / (max - mean), which has
-the target mean (p = 2, the triangular law on [0, 180], for absolute pairs). Draws are stratified (one per
+the target mean (p = 2, the triangular law on [0, 180], for absolute pairs of dataset=synthetic); dataset=survey's
+absolute pairs are revisits instead (:func:`revisit_weights`: same-direction, opposite and crossing traversals
+mixed so that the mean is 120 degrees exactly). Draws are stratified (one per
 quantile stratum, shuffled) so that small samples already match the targets. The translation direction is
 uniform; its length is solved for the target overlap by bisection (the overlap of two centred, centrally
 symmetric footprints falls monotonically along any ray).
