@@ -10,41 +10,65 @@ import sys
 import numpy as np
 
 from gtsweep.core.errors import GtsweepError
-from gtsweep.datasets import load_dataset, overlap, rotation_deg, synthetic
+from gtsweep.datasets import layout, load_dataset, overlap, rotation_deg, synthetic
 
-#: Survey section 5.2 (Micro-GPS): overlap mean / min, rotation mean.
+#: Survey section 5.2 (Micro-GPS): overlap mean / min, rotation mean (the share below 15 degrees is not given).
 SURVEY = {"incremental": (0.227, 0.017, 3.0), "absolute": (0.437, None, 120.0)}
+#: Rotations below this many degrees count as "small" (near the same heading).
+SMALL_ROTATION_DEG = 15.0
 
 
-def pair_statistics(dataset) -> dict[str, dict]:
-    """Per pair kind: count, overlap mean/min/max and rotation mean/max (degrees), from the poses."""
+def _summary(overlaps: np.ndarray, rotations: np.ndarray) -> dict:
+    if not len(overlaps):
+        return {"pairs": 0}
+    return {"pairs": len(overlaps), "overlap_mean": overlaps.mean(), "overlap_min": overlaps.min(),
+            "overlap_max": overlaps.max(), "rotation_mean": rotations.mean(), "rotation_max": rotations.max(),
+            "small_rotation_share": float(np.mean(rotations < SMALL_ROTATION_DEG))}
+
+
+def pair_statistics(dataset, per_texture: bool = False) -> dict[str, dict]:
+    """Per pair kind (and with ``per_texture``, per ``"kind/texture"`` too): count, overlap mean/min/max, rotation
+    mean/max (degrees) and the share of rotations below 15 degrees, from the poses."""
     stats, shapes = {}, {}
     for kind in SURVEY:
         pairs = dataset.pairs(kind)
         for p in pairs:  # one image per texture gives its size
             shapes.setdefault(p.texture, p.reference.load().shape)
         overlaps = np.array([overlap(p.reference.pose, p.test.pose, shapes[p.texture]) for p in pairs])
-        rotations = np.array([rotation_deg(p.reference.pose, p.test.pose) for p in pairs])
-        stats[kind] = {"pairs": len(pairs)} if not len(pairs) else {
-            "pairs": len(pairs), "overlap_mean": overlaps.mean(), "overlap_min": overlaps.min(),
-            "overlap_max": overlaps.max(), "rotation_mean": rotations.mean(), "rotation_max": rotations.max()}
+        rotations = np.array([rotation_deg(p.reference.pose, p.test.pose, shapes[p.texture]) for p in pairs])
+        stats[kind] = _summary(overlaps, rotations)
+        textures = np.array([p.texture for p in pairs])
+        for texture in (dataset.textures if per_texture else ()):
+            chosen = textures == texture
+            stats[f"{kind}/{texture}"] = _summary(overlaps[chosen], rotations[chosen])
     return stats
 
 
 def format_statistics(name: str, stats: dict) -> str:
     lines = [f"data set '{name}': pair statistics (survey's Micro-GPS numbers in parentheses)",
-             f"{'kind':12s} {'pairs':>5s}  {'overlap mean':>16s}  {'overlap min':>15s}  {'overlap max':>11s}"
-             f"  {'rotation mean':>16s}  {'rotation max':>12s}"]
-    for kind, s in stats.items():
+             f"{'kind':27s} {'pairs':>5s}  {'overlap mean':>16s}  {'overlap min':>15s}  {'overlap max':>11s}"
+             f"  {'rotation mean':>16s}  {'rotation max':>12s}  {'< 15°':>11s}"]
+    for key, s in stats.items():
         if s["pairs"] == 0:
-            lines.append(f"{kind:12s} {0:5d}")
+            lines.append(f"{key:27s} {0:5d}")
             continue
-        o_mean, o_min, r_mean = SURVEY[kind]
+        o_mean, o_min, r_mean = SURVEY[key.split("/")[0]]
         survey_min = f"({o_min:.3f})" if o_min is not None else "(n/a)"
-        lines.append(f"{kind:12s} {s['pairs']:5d}  {s['overlap_mean']:7.3f} ({o_mean:.3f})  "
+        lines.append(f"{key:27s} {s['pairs']:5d}  {s['overlap_mean']:7.3f} ({o_mean:.3f})  "
                      f"{s['overlap_min']:7.3f} {survey_min}  {s['overlap_max']:11.3f}  "
-                     f"{s['rotation_mean']:6.1f}° ({r_mean:5.1f}°)  {s['rotation_max']:11.1f}°")
+                     f"{s['rotation_mean']:6.1f}° ({r_mean:5.1f}°)  {s['rotation_max']:11.1f}°  "
+                     f"{s['small_rotation_share']:5.1%} (n/a)")
     return "\n".join(lines)
+
+
+def revisit_line(law) -> str:
+    """The absolute pairs' revisit law (layout.revisit_weights) with its analytic mean and share below 15°."""
+    law = {**synthetic.PAIR_LAWS["absolute"], **law}
+    same, opposite, crossing = layout.revisit_weights(law)
+    return (f"absolute rotation law: revisits, same direction {same:.3f}, opposite {opposite:.3f}, crossing "
+            f"{crossing:.3f}, heading noise {float(law['heading_noise_deg']):g}°: mean "
+            f"{layout.revisit_mean(law):.1f}° "
+            f"(survey 120°), {layout.revisit_share_below(law, SMALL_ROTATION_DEG):.1%} below 15° (analytic)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,11 +97,15 @@ def describe(cfg) -> int:
     """Print the statistics of ``cfg.dataset``; 2 after a one-line error."""
     try:
         dataset = load_dataset(cfg.dataset)
-        print(format_statistics(dataset.name, pair_statistics(dataset)))
-        seconds = synthetic.generation_seconds(dataset, cfg.dataset.cache_dir) if dataset.name == "synthetic" \
-            else None
+        print(format_statistics(dataset.name, pair_statistics(dataset, per_texture=len(dataset.textures) > 1)))
+        law = cfg.dataset.get("absolute") or {}
+        if cfg.dataset.get("loader") == "synthetic" and law.get("rotation_law") == "revisit":
+            print(revisit_line(law))
+        seconds = synthetic.generation_seconds(dataset, cfg.dataset.cache_dir) \
+            if cfg.dataset.get("loader") == "synthetic" else None
         if seconds is not None:
-            print(f"rendered in {seconds:.1f} s (cached under {cfg.dataset.cache_dir}/datasets/)")
+            print(f"rendered in {seconds:.1f} s (cached under {cfg.dataset.cache_dir}/datasets/; a cached data set "
+                  f"loads without rendering)")
     except GtsweepError as error:
         print(f"gtsweep.datasets: error: {str(error).splitlines()[0]}", file=sys.stderr)
         return 2

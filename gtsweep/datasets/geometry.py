@@ -10,6 +10,8 @@ import math
 import cv2
 import numpy as np
 
+from gtsweep.evaluation.metrics import jacobian
+
 
 def similarity_pose(x: float, y: float, theta_deg: float, scale: float = 1.0) -> np.ndarray:
     """Pose (image -> map) with translation (x, y), Micro-GPS orientation ``theta_deg`` and ``scale``.
@@ -29,14 +31,16 @@ def centred_pose(cx: float, cy: float, theta_deg: float, scale: float, shape) ->
     return pose
 
 
-def orientation_deg(pose: np.ndarray) -> float:
-    """Orientation of a pose in degrees (Micro-GPS: ``atan2(pose[0, 1], pose[0, 0])``)."""
-    return math.degrees(math.atan2(pose[0, 1], pose[0, 0]))
+def orientation_deg(pose: np.ndarray, shape=None) -> float:
+    """Orientation of a pose in degrees (Micro-GPS: ``atan2(pose[0, 1], pose[0, 0])``); with the image ``shape``
+    (h, w), of the pose's Jacobian at the image centre (the same for affine poses; right for tilted ones)."""
+    linear = pose if shape is None else jacobian(pose, ((shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0))
+    return math.degrees(math.atan2(linear[0, 1], linear[0, 0]))
 
 
-def rotation_deg(pose_a: np.ndarray, pose_b: np.ndarray) -> float:
-    """Absolute relative orientation of two poses in degrees, in [0, 180]."""
-    diff = orientation_deg(pose_a) - orientation_deg(pose_b)
+def rotation_deg(pose_a: np.ndarray, pose_b: np.ndarray, shape=None) -> float:
+    """Absolute relative orientation of two poses in degrees, in [0, 180] (``shape``: see orientation_deg)."""
+    diff = orientation_deg(pose_a, shape) - orientation_deg(pose_b, shape)
     return abs((diff + 180.0) % 360.0 - 180.0)
 
 

@@ -3,7 +3,9 @@
 Per texture a floor is generated from the seed (:mod:`gtsweep.datasets.floors`), views are placed on it
 (:mod:`gtsweep.datasets.layout`) and rendered with ``cv2.warpAffine`` at their exact pose (image -> map), then
 "captured" with sensor noise; absolute test views also get a different day's photometry
-(:mod:`gtsweep.datasets.photometric`). Views are written once as PNGs with an ``index.json`` under
+(:mod:`gtsweep.datasets.photometric`). With a ``capture`` group (``dataset=survey``) every view is a frame of a
+moving camera instead (:mod:`gtsweep.datasets.capture`: motion blur, auto-exposure, the robot's lighting, shot
+and read noise, tilt folded into the pose), and absolute test views also a capture of another ``day``. Views are written once as PNGs with an ``index.json`` under
 ``<cache_dir>/datasets/synthetic-<fingerprint>/`` (built in a temporary folder, then renamed, so an interrupted run never
 leaves half a data set); later loads only read the index. The temporary folder's name holds the writer's pid: the
 next load removes those of writers that died (killed mid-render).
@@ -24,7 +26,7 @@ import numpy as np
 from gtsweep.core.atomic import respect_umask
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import DEFAULT_CACHE_DIR
-from gtsweep.datasets import floors, layout, photometric
+from gtsweep.datasets import capture, floors, geometry, layout, photometric
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset, Pair, Sample, fingerprint_of
 from gtsweep.datasets.pairing import texture_rng
@@ -37,7 +39,13 @@ PAIR_LAWS = {
     "absolute": {"overlap_mean": 0.437, "overlap_concentration": 6.0, "overlap_min": 0.05,
                  "overlap_max": 0.95, "rotation_mean": 120.0, "rotation_max": 180.0},
 }
+#: Keys added after the first release: at their default (None) they are left out of the fingerprint, so caches,
+#: studies and results of configs without them stay as they were. Law keys: layout.rotation_targets.
+LATER_KEYS = {"rotation_law": None, "crossing": None, "heading_noise_deg": None}
+for _law in PAIR_LAWS.values():
+    _law.update(LATER_KEYS)
 DEFAULTS = {
+    "name": "synthetic",            # the data set's name in results and reports
     "seed": 0,
     "cache_dir": str(DEFAULT_CACHE_DIR),
     "textures": list(floors.FLOOR_TYPES),
@@ -54,9 +62,13 @@ DEFAULTS = {
     "incremental": PAIR_LAWS["incremental"],
     "absolute": PAIR_LAWS["absolute"],
     "photometric": photometric.DEFAULT_RANGES,
+    "separate_optimisation": None,  # true: the floor grows until optimisation views have their own band
+    "capture": None,                # per-frame capture physics (capture.FRAME_DEFAULTS); null = off
+    "day": None,                    # another day's floor for absolute test views (capture.DAY_DEFAULTS)
 }
+NEW_OPTIONS = ("separate_optimisation", "capture", "day")
 #: Options that do not change the rendered content.
-NOT_CONTENT = ("loader", "root", "skip_bad", "cache_dir")
+NOT_CONTENT = ("loader", "root", "skip_bad", "cache_dir", "name")
 
 
 def check(options: dict) -> dict:
@@ -74,7 +86,15 @@ def check(options: dict) -> dict:
         opts.count(options, key)
     if not 0 <= float(options["scale_jitter"]) < 0.5:
         raise BadInput(f"dataset.scale_jitter must lie in [0, 0.5), got {options['scale_jitter']}")
-    nested = {key: _merged(key, options[key]) for key in ("incremental", "absolute", "photometric")}
+    nested = {key: _merged(key, options[key]) for key in ("incremental", "absolute")}
+    for key in ("incremental", "absolute"):
+        if nested[key]["rotation_law"] not in (None, "power", "revisit"):
+            raise UnknownMethod(f"dataset.{key}.rotation_law", nested[key]["rotation_law"], ("power", "revisit"))
+        if nested[key]["rotation_law"] == "revisit":
+            layout.revisit_weights(nested[key])
+    nested["photometric"] = None if options["photometric"] is None else _merged("photometric", options["photometric"])
+    nested["capture"] = capture.check(options["capture"], capture.FRAME_DEFAULTS)
+    nested["day"] = capture.check(options["day"], capture.DAY_DEFAULTS)
     return {**options, **nested, "textures": textures, "view_size": (int(size[0]), int(size[1]))}
 
 
@@ -87,15 +107,25 @@ def _merged(key: str, given) -> dict:
     return {**DEFAULTS[key], **given}
 
 
+def reach_px(options: Mapping) -> float:
+    """How far camera tilt can move a view's corner (0 without a capture group)."""
+    frame = options["capture"]
+    if frame is None or float(frame["tilt_deg"]) == 0:
+        return 0.0
+    return capture.tilt_reach_px(float(frame["tilt_deg"]), options["view_size"],
+                                 capture.focal_px(frame, options["px_per_mm"]))
+
+
 def floor_side(texture: str, options: Mapping) -> int:
     """Floor side in pixels: ``floor_size``, or 4 view widths (procedural) / the upsampled photo (photos), at
-    least what a pair needs."""
-    view, jitter = options["view_size"], float(options["scale_jitter"])
+    least what a pair needs (and an optimisation band, with ``separate_optimisation``)."""
+    view, jitter, reach = options["view_size"], float(options["scale_jitter"]), reach_px(options)
     if options["floor_size"] is not None:
         return int(options["floor_size"])
+    separate = bool(options["separate_optimisation"])
     if texture in floors.PHOTOS:
-        return max(int(512 * float(options["photo_upsample"])), layout.required_side(view, jitter, False))
-    return max(4 * view[0], layout.required_side(view, jitter, True))
+        return max(int(512 * float(options["photo_upsample"])), layout.required_side(view, jitter, separate, reach))
+    return max(4 * view[0], layout.required_side(view, jitter, True, reach))
 
 
 def plan_texture(texture: str, options: Mapping, floor: layout.Floor) -> list[dict]:
@@ -110,36 +140,86 @@ def plan_texture(texture: str, options: Mapping, floor: layout.Floor) -> list[di
     for kind in ("incremental", "absolute"):
         for k, (reference, test, target) in enumerate(
                 layout.pair_views(rng, options[f"n_{kind}"], floor, view, jitter, options[kind])):
-            params = photometric.draw(rng, options["photometric"]) if kind == "absolute" else None
+            params = photometric.draw(rng, options["photometric"]) \
+                if kind == "absolute" and options["photometric"] is not None else None
             pair_id = f"{texture}/{kind}/{k:03d}"
             views.append({"id": f"{pair_id}/reference", "split": kind, "pose": reference, "params": None,
                           "pair": pair_id, "target_overlap": target})
             views.append({"id": f"{pair_id}/test", "split": kind, "pose": test, "params": params,
                           "pair": pair_id, "target_overlap": target})
-    return views
+    return views if options["capture"] is None else [frame_of(texture, view, views, options) for view in views]
+
+
+def frame_of(texture: str, view: dict, views: list[dict], options: Mapping) -> dict:
+    """``view`` as a frame of a moving camera: its capture parameters (own generator per view), the tilt folded
+    into the pose (exact ground truth), the direction of travel in the image and, for an absolute test view,
+    another day's parameters.
+
+    Travel: an incremental pair's frames are taken in sequence, so the camera moved from the reference's centre
+    to the test's; other views travel in a random direction."""
+    rng = texture_rng(options["seed"], texture, view["id"], "frame")
+    frame = capture.draw_frame(rng, options["capture"])
+    shape = options["view_size"][::-1]
+    pose = view["pose"]
+    travel = float(rng.uniform(0.0, 360.0))
+    if view["split"] == "incremental":
+        pair = [v["pose"] for v in views if v.get("pair") == view["pair"]]
+        step = geometry.centre(pair[1], shape) - geometry.centre(pair[0], shape)
+        local = np.linalg.inv(pose[:2, :2]) @ step  # map direction -> image direction (before tilt)
+        travel = float(np.degrees(np.arctan2(local[1], local[0])))
+    focal = capture.focal_px(options["capture"], options["px_per_mm"])
+    tilted = pose @ capture.tilt(frame["pitch_deg"], frame["roll_deg"], shape, focal)
+    day = None
+    if view["split"] == "absolute" and view["id"].endswith("/test") and options["day"] is not None:
+        day = capture.draw_day(rng, options["day"])
+    return {**view, "pose": tilted / tilted[2, 2], "frame": {**frame, "travel_deg": travel}, "day": day}
+
+
+def radiance_at(floor: np.ndarray, pose: np.ndarray, shape) -> np.ndarray:
+    """The floor seen at ``pose`` (float32, ``shape`` = (h, w)): ``image(p) = floor(pose @ p)`` (bicubic; a
+    perspective warp when the pose holds a tilt)."""
+    h, w = shape
+    pose = np.asarray(pose, dtype=np.float64)
+    floor = floor.astype(np.float32, copy=False)
+    flags, border = cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, cv2.BORDER_REFLECT
+    if np.allclose(pose[2], (0.0, 0.0, 1.0), rtol=0, atol=0):
+        return cv2.warpAffine(floor, pose[:2], (w, h), flags=flags, borderMode=border)
+    return cv2.warpPerspective(floor, pose, (w, h), flags=flags, borderMode=border)
 
 
 def render_view(floor: np.ndarray, pose: np.ndarray, shape, rng: np.random.Generator | None = None,
                 sensor_noise: float = 0.0, params: Mapping | None = None) -> np.ndarray:
-    """The uint8 camera image (``shape`` = (h, w)) at ``pose``: ``image(p) = floor(pose @ p)`` (bicubic), then
-    captured with ``sensor_noise`` and optional photometric ``params`` (see :func:`photometric.capture`)."""
-    h, w = shape
-    radiance = cv2.warpAffine(floor.astype(np.float32, copy=False), np.asarray(pose, dtype=np.float64)[:2], (w, h),
-                              flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+    """The uint8 camera image (``shape`` = (h, w)) at ``pose`` (:func:`radiance_at`), captured with
+    ``sensor_noise`` and optional photometric ``params`` (see :func:`photometric.capture`)."""
+    radiance = radiance_at(floor, pose, shape)
     return photometric.capture(radiance, rng if rng is not None else np.random.default_rng(0), sensor_noise, params)
+
+
+def render_frame(floor: np.ndarray, view: Mapping, options: Mapping, rng: np.random.Generator) -> np.ndarray:
+    """A view of a ``capture`` data set: the floor at its pose, another day's floor for an absolute test view
+    (:func:`capture.day`), then the frame's capture (:func:`capture.capture`) and any photometric params."""
+    shape = options["view_size"][::-1]
+    radiance = radiance_at(floor, view["pose"], shape)
+    if view.get("day") is not None:
+        radiance = capture.day(radiance, rng, view["day"], float(options["px_per_mm"]))
+    image = capture.capture(radiance, rng, view["frame"], options["capture"], float(options["px_per_mm"]),
+                            view["frame"]["travel_deg"])
+    return image if view["params"] is None else photometric.capture(image, rng, 0.0, view["params"])
 
 
 def render_texture(texture: str, options: Mapping, folder: Path) -> list[dict]:
     """Generate the floor, render and write every view of ``texture``; returns its index records."""
     side = floor_side(texture, options)
-    floor_plan = layout.plan_floor(side, options["view_size"], float(options["scale_jitter"]))
+    floor_plan = layout.plan_floor(side, options["view_size"], float(options["scale_jitter"]), reach_px(options),
+                                   bool(options["separate_optimisation"]))
     floor = floors.make_floor(texture, texture_rng(options["seed"], texture, "floor"), (side, side),
                               float(options["px_per_mm"]))
     shape = options["view_size"][::-1]
     records = []
     for view in plan_texture(texture, options, floor_plan):
         noise_rng = texture_rng(options["seed"], texture, view["id"], "capture")
-        image = render_view(floor, view["pose"], shape, noise_rng, float(options["sensor_noise"]), view["params"])
+        image = render_view(floor, view["pose"], shape, noise_rng, float(options["sensor_noise"]), view["params"]) \
+            if options["capture"] is None else render_frame(floor, view, options, noise_rng)
         file = Path("images") / f"{view['id'].replace('/', '_')}.png"
         if not cv2.imwrite(str(folder / file), image):
             raise BadInput(f"cannot write {folder / file}")
@@ -195,10 +275,15 @@ def render(options: Mapping, target: Path) -> None:
 
 
 def _content_options(options: Mapping) -> dict:
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in options.items() if k not in NOT_CONTENT}
+    """What defines the rendered content; options added later are left out at their default (None)."""
+    content = {k: (list(v) if isinstance(v, tuple) else v) for k, v in options.items()
+               if k not in NOT_CONTENT and not (k in NEW_OPTIONS and v is None)}
+    for key in ("incremental", "absolute"):
+        content[key] = {k: v for k, v in content[key].items() if not (k in LATER_KEYS and v is None)}
+    return content
 
 
-def from_index(folder: Path, fingerprint: str) -> Dataset:
+def from_index(folder: Path, fingerprint: str, name: str = "synthetic") -> Dataset:
     """The data set described by ``folder/index.json``."""
     try:
         index = json.loads((folder / "index.json").read_text())
@@ -218,7 +303,7 @@ def from_index(folder: Path, fingerprint: str) -> Dataset:
         texture, kind, _ = pair_id.split("/")
         pairs[kind].append(Pair(pair_id, texture, kind, members["reference"], members["test"]))
     textures = list(index["options"]["textures"])
-    return Dataset("synthetic", textures, images, pairs, fingerprint)
+    return Dataset(str(name), textures, images, pairs, fingerprint)
 
 
 def load(cfg: Mapping) -> Dataset:
@@ -230,7 +315,7 @@ def load(cfg: Mapping) -> Dataset:
         remove_dead_leftovers(folder.parent)
     if not (folder / "index.json").is_file():
         render(options, folder)
-    return from_index(folder, fingerprint)
+    return from_index(folder, fingerprint, options.get("name") or "synthetic")
 
 
 def generation_seconds(dataset: Dataset, cache_dir: str | Path) -> float | None:

@@ -91,6 +91,15 @@ def circle_iou(a, b) -> np.ndarray:
         return np.where(union > 0, inter / union, 0.0)
 
 
+def jacobian(H: np.ndarray, point) -> np.ndarray:
+    """The 2x2 Jacobian of the homography ``H`` at ``point`` (x, y): its linear part for an affine ``H``."""
+    H = np.asarray(H, dtype=np.float64)
+    point = np.asarray(point, dtype=np.float64)
+    w = H[2, 0] * point[0] + H[2, 1] * point[1] + H[2, 2]
+    mapped = (H[:2, :2] @ point + H[:2, 2]) / w
+    return (H[:2, :2] - np.outer(mapped, H[2, :2])) / w
+
+
 def _map_points(xy: np.ndarray, H: np.ndarray) -> np.ndarray:
     """Points (N, 2) mapped by H; points sent to or beyond the line at infinity become NaN."""
     hom = xy @ H[:, :2].T + H[:, 2]
@@ -295,7 +304,8 @@ def pose_error(T_est, T_true, test_shape) -> tuple[float, float]:
 
     Position error: distance between ``T_est(c)`` and ``T_true(c)`` for the test image centre
     ``c = ((w - 1) / 2, (h - 1) / 2)``, ``test_shape = (h, w)``. Orientation error:
-    ``|wrap(angle(T_est) - angle(T_true))|`` in [0, 180] with ``angle(T) = atan2(T[1, 0], T[0, 0])``.
+    ``|wrap(angle(T_est) - angle(T_true))|`` in [0, 180] with ``angle(T) = atan2(J[1, 0], J[0, 0])``, ``J`` the
+    Jacobian of ``T`` at ``c`` (``T``'s linear part when affine; a tilted camera's ground truth is projective).
     ``T_est is None`` (no estimate) gives ``(inf, inf)``.
     """
     if T_est is None:
@@ -304,7 +314,8 @@ def pose_error(T_est, T_true, test_shape) -> tuple[float, float]:
     h, w = test_shape[:2]
     centre = np.array([[(w - 1) / 2.0, (h - 1) / 2.0]])
     position = float(np.linalg.norm(_map_points(centre, est) - _map_points(centre, true)))
-    turn = math.atan2(est[1, 0], est[0, 0]) - math.atan2(true[1, 0], true[0, 0])
+    est_linear, true_linear = jacobian(est, centre[0]), jacobian(true, centre[0])
+    turn = math.atan2(est_linear[1, 0], est_linear[0, 0]) - math.atan2(true_linear[1, 0], true_linear[0, 0])
     orientation = abs(math.degrees(math.atan2(math.sin(turn), math.cos(turn))))
     return position, orientation
 

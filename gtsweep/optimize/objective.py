@@ -60,7 +60,7 @@ def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
     cache = KeypointCache(job.get("cache_dir") if pose else None)
     experiment = {"name": "pose", "ratio": settings.get("ratio", 0.7), "mutual": bool(settings.get("mutual")),
                   "iou_threshold": settings["iou_threshold"], "min_keypoints": settings["min_keypoints"],
-                  "pose": settings.get("pose")}
+                  "pose": settings.get("pose"), "budget_per_mpx": settings.get("budget_per_mpx")}
     method = {"detector": job["detector"], "detector_cfg": {"params": job["detector_params"]},
               "selector": job["selector"], "selector_cfg": {"params": job["selector_params"]}}
     rows: dict[str, list[dict]] = {}

@@ -19,6 +19,7 @@ SETTINGS = {
     "n_trials": Range(1, None, integer=True),
     "parallel_trials": Range(1, None, integer=True),
     "min_keypoints": Range(1, None, integer=True),
+    "budget_per_mpx": Range(0, None, low_open=True, optional=True),
     "sampler_seed": Range(0, None, integer=True),
     "n_startup_trials": Range(0, None, integer=True),
     "iou_threshold": Range(0, 1, low_open=True, high_open=True),

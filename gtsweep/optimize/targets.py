@@ -97,4 +97,6 @@ def study_name(target: Target, settings: Mapping, fingerprint: str, seed: int, s
         what.update(ratio=settings.get("ratio"), pose=settings.get("pose"))
         if settings.get("mutual"):  # only when on, so that earlier studies keep their names
             what["mutual"] = True
+    if settings.get("budget_per_mpx") is not None:  # likewise
+        what["budget_per_mpx"] = settings["budget_per_mpx"]
     return f"{target.label}-{settings['objective']}-{config_hash(what)[:10]}"

@@ -18,6 +18,7 @@ SETTINGS = {
     "seed": Range(0, None, integer=True),
     "experiment.iou_threshold": Range(0, 1, low_open=True, high_open=True),
     "experiment.min_keypoints": _COUNT,
+    "experiment.budget_per_mpx": Range(0, None, low_open=True, optional=True),
     "experiment.ratio": Range(0, 1, low_open=True),
     "experiment.mutual": Choice((True, False)),
     "experiment.pose.model": Choice(("similarity", "euclidean")),

@@ -16,6 +16,7 @@ import time
 
 from gtsweep.core.errors import NotApplicable
 from gtsweep.core.seeds import stable_seed
+from gtsweep.evaluation import budget
 from gtsweep.evaluation.evaluate import (
     describe_pair,
     detection_metrics,
@@ -110,15 +111,15 @@ def build_methods(methods: dict | None, experiment: dict) -> tuple[dict, dict]:
 def detect_views(cache: KeypointCache, shard: dict, transform: str, transform_cfg: dict, method: dict,
                  experiment: dict, seed: int) -> tuple[list, list[dict]]:
     """Keypoints ``(reference, test)`` and a row of detection metrics per view of a shard; raises on failure."""
-    detection = (method["detector"], method["detector_cfg"].get("params") or {},
-                 method["selector"], method["selector_cfg"].get("params") or {})
     keypoints, rows = [], []
     for meta, view in views(shard, transform, transform_cfg, seed):
+        selection, min_keypoints = budget.scaled(method["selector_cfg"].get("params") or {},
+                                                 experiment.get("min_keypoints", 100), experiment, view.test.shape)
+        detection = (method["detector"], method["detector_cfg"].get("params") or {}, method["selector"], selection)
         ref, n_ref, _ = detect_cached(cache, view.reference, view.reference_mask, *detection)
         test, n_test, seconds = detect_cached(cache, view.test, view.test_mask, *detection)
         row = {**meta, "n_detected": n_test, "n_kp_ref": len(ref), "n_kp_test": len(test), "t_detect": seconds}
-        row.update(detection_metrics(view, ref, test, experiment.get("iou_threshold", 0.5),
-                                     experiment.get("min_keypoints", 100)))
+        row.update(detection_metrics(view, ref, test, experiment.get("iou_threshold", 0.5), min_keypoints))
         keypoints.append((ref, test))
         rows.append(row)
     return keypoints, rows
