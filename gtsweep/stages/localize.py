@@ -152,13 +152,14 @@ def localize(query_kps: np.ndarray, query_desc: np.ndarray, shape, feature_map: 
              acceptance: Acceptance, voting: bool = True, vote_cell: float = 60.0, seed: int = 0) -> dict:
     """Localize one query against ``feature_map`` through its matcher ``index`` (``index.match(desc) -> (M, 2)``
     of query and map feature indices) with every estimator of ``estimators`` (``{name: est}``, ``est.estimate(
-    query_xy, map_xy, seed) -> PoseEstimate``). Returns the shared columns (``n_matches``, ``n_voted``, ``t_match``,
-    ``t_vote``) and ``{"poses": {name: (PoseEstimate, seconds, accepted)}}``."""
+    query_xy, map_xy, seed) -> PoseEstimate``). Returns ``n_matches``, ``n_voted``, ``t_match``, ``t_vote`` and ``{"poses": {name: (PoseEstimate, seconds, accepted)}}``; ``n_voted`` matches (all without voting) reach the
+    estimators, and the inlier ratio of the acceptance rule is taken over them."""
     h, w = shape[:2]
     start = time.perf_counter()
     matches = np.asarray(index.match(query_desc), dtype=np.int64).reshape(-1, 2) if len(feature_map) and len(
         query_desc) else np.zeros((0, 2), np.int64)
     t_match = time.perf_counter() - start
+    n_matches = len(matches)
     start = time.perf_counter()
     if voting and len(matches):
         q_angle = np.where(query_kps[matches[:, 0], kp.ANGLE] >= 0, query_kps[matches[:, 0], kp.ANGLE], np.nan)
@@ -174,7 +175,7 @@ def localize(query_kps: np.ndarray, query_desc: np.ndarray, shape, feature_map: 
         seconds = time.perf_counter() - start
         accepted = estimate.matrix is not None and acceptance.accepts(estimate.n_inliers, len(matches))
         poses[name] = (estimate, seconds, accepted)
-    return {"n_matches": len(matches), "t_match": t_match, "t_vote": t_vote, "poses": poses}
+    return {"n_matches": n_matches, "n_voted": len(matches), "t_match": t_match, "t_vote": t_vote, "poses": poses}
 
 
 def pose_columns(matrix: np.ndarray | None, shape) -> dict:
