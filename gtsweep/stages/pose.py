@@ -4,14 +4,26 @@ A 2-D similarity (rotation, translation, one uniform scale) is the complex-affin
 with ``z = x + i y`` and ``a = s·e^{iθ}``; a Euclidean transform has ``|a| = 1``. Two correspondences determine
 a hypothesis; the final model is refit on the inliers by least squares (Umeyama 1991, with or without scale).
 The matrix maps TEST pixels to REFERENCE pixels: ``[[Re a, -Im a, Re b], [Im a, Re a, Im b], [0, 0, 1]]``.
+
+:data:`ESTIMATORS` holds the robust estimators a sweep can compare (the survey's outlook: "different ... pose
+estimation methods"): ``ransac`` (:func:`estimate_pose`, the survey's), OpenCV's ``estimateAffinePartial2D``
+with RANSAC (``cv_ransac``) or least median of squares (``cv_lmeds``, Rousseeuw 1984), and ``magsac``: MAGSAC++
+(Barath et al., CVPR 2020). OpenCV 5.0's ``estimateAffinePartial2D`` accepts only RANSAC and LMEDS (USAC flags:
+"Unknown or unsupported robust estimation method", opencv/opencv#19166); its USAC framework estimates 2-D
+transforms only in ``estimateAffine2D``, so ``magsac`` runs ``estimateAffine2D(method=USAC_MAGSAC)`` (6-DoF
+affine hypotheses, MAGSAC++ scoring) and fits the similarity by least squares on the inliers it returns.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 
+import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.ranges import Choice, Range, check_all
+from gtsweep.core.registry import Method, Registry
 
 MODELS = ("similarity", "euclidean")
 # Hypotheses × matches scored per NumPy chunk (bounds memory to ~64 MiB of complex residuals).
@@ -115,3 +127,123 @@ def estimate_pose(test_xy, ref_xy, model: str = "similarity", iterations: int = 
         a_best, b_best = a[best], b[best]
     return PoseEstimate(matrix=_matrix(complex(a_best), complex(b_best)), inliers=inliers,
                         n_inliers=int(inliers.sum()))
+
+
+# --- Estimators as a registry family: every one maps (test_xy, ref_xy, seed) to a PoseEstimate. -------------------
+
+_RULES = {"model": Choice(MODELS), "iterations": Range(1, None, integer=True), "threshold": Range(0, None, low_open=True),
+          "confidence": Range(0, 1, low_open=True, high_open=True), "refine_iters": Range(0, None, integer=True)}
+
+
+@dataclasses.dataclass(frozen=True)
+class SeededRansac:
+    """:func:`estimate_pose` with fixed settings (the survey's RANSAC: similarity, 2000 iterations, 3 px)."""
+
+    model: str = "similarity"
+    iterations: int = 2000
+    threshold: float = 3.0
+
+    def __post_init__(self):
+        check_all(dataclasses.asdict(self), _RULES, "estimator 'ransac' parameter ")
+
+    def estimate(self, test_xy, ref_xy, seed: int = 0) -> PoseEstimate:
+        return estimate_pose(test_xy, ref_xy, model=self.model, iterations=self.iterations,
+                             threshold=self.threshold, seed=seed)
+
+
+def _points(xy, name: str) -> np.ndarray:
+    """``xy`` as a contiguous float64 ``(M, 2)`` array (OpenCV's point set), checked like :func:`estimate_pose`."""
+    a = np.asarray(xy, dtype=np.float64)
+    if a.size == 0:
+        return np.zeros((0, 2))
+    if a.ndim != 2 or a.shape[1] != 2:
+        raise BadInput(f"{name} must be an (M, 2) array of x, y; got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise BadInput(f"{name} contain NaN or infinite values")
+    return np.ascontiguousarray(a)
+
+
+def similarity_lstsq(test_xy: np.ndarray, ref_xy: np.ndarray) -> np.ndarray | None:
+    """Least-squares similarity (3x3, test→ref) of matched points: the linear system in (a, b, tx, ty) of
+    ``x' = a x - b y + tx, y' = b x + a y + ty`` (``numpy.linalg.lstsq``); None for fewer than 2 distinct points."""
+    if len(test_xy) < 2 or np.ptp(test_xy, axis=0).max() <= _MIN_SPAN:
+        return None
+    x, y = test_xy[:, 0], test_xy[:, 1]
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    rows = np.concatenate([np.column_stack([x, -y, one, zero]), np.column_stack([y, x, zero, one])])
+    (a, b, tx, ty), *_ = np.linalg.lstsq(rows, np.concatenate([ref_xy[:, 0], ref_xy[:, 1]]), rcond=None)
+    return np.array([[a, -b, tx], [b, a, ty], [0.0, 0.0, 1.0]])
+
+
+@dataclasses.dataclass(frozen=True)
+class OpenCVEstimator:
+    """OpenCV's robust 2-D estimators. ``method``: ``ransac`` or ``lmeds`` run ``cv2.estimateAffinePartial2D``
+    (a similarity, refined by Levenberg-Marquardt on the inliers for ``refine_iters`` steps); ``magsac`` runs
+    ``cv2.estimateAffine2D(method=cv2.USAC_MAGSAC)`` and refits a similarity on its inliers
+    (:func:`similarity_lstsq`). ``cv2.setRNGSeed(seed)`` precedes every call, so a seed gives one answer.
+    LMEDS has no threshold: OpenCV derives its inlier bound from the median residual."""
+
+    method: str = "ransac"
+    threshold: float = 3.0
+    iterations: int = 2000
+    confidence: float = 0.99
+    refine_iters: int = 10
+
+    def __post_init__(self):
+        check_all(dataclasses.asdict(self), {**_RULES, "method": Choice(tuple(_CV_METHODS))},
+                  f"estimator '{_CV_NAMES.get(self.method, self.method)}' parameter ")
+
+    def estimate(self, test_xy, ref_xy, seed: int = 0) -> PoseEstimate:
+        src, dst = _points(test_xy, "test points"), _points(ref_xy, "reference points")
+        if src.shape != dst.shape:
+            raise BadInput(f"test and reference points differ in number: {len(src)} vs {len(dst)}")
+        none = PoseEstimate(matrix=None, inliers=np.zeros(len(src), dtype=bool), n_inliers=0)
+        if len(src) < (3 if self.method == "magsac" else 2):
+            return none
+        function, flag = _CV_METHODS[self.method]
+        cv2.setRNGSeed(int(seed))
+        matrix, mask = function(src, dst, method=flag, ransacReprojThreshold=float(self.threshold),
+                                maxIters=int(self.iterations), confidence=float(self.confidence),
+                                refineIters=int(self.refine_iters))
+        if matrix is None or mask is None:
+            return none
+        inliers = mask.ravel().astype(bool)
+        if self.method == "magsac":
+            full = similarity_lstsq(src[inliers], dst[inliers])
+            if full is None:
+                return none
+        else:
+            full = np.vstack([matrix, [0.0, 0.0, 1.0]])
+        return PoseEstimate(matrix=full, inliers=inliers, n_inliers=int(inliers.sum()))
+
+
+_CV_METHODS = {"ransac": (cv2.estimateAffinePartial2D, cv2.RANSAC),
+               "lmeds": (cv2.estimateAffinePartial2D, cv2.LMEDS),
+               "magsac": (cv2.estimateAffine2D, cv2.USAC_MAGSAC)}
+_CV_NAMES = {"ransac": "cv_ransac", "lmeds": "cv_lmeds", "magsac": "magsac"}
+
+
+def _probe(estimator) -> None:
+    """Estimate once on a few exact correspondences (OpenCV checks its arguments only when it runs)."""
+    test = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 3.0]])
+    estimator.estimate(test, test + 1.0, seed=0)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EstimatorSpec(Method):
+    """A pose estimator: ``build(params)`` gives an object with ``estimate(test_xy, ref_xy, seed) ->
+    PoseEstimate`` (3x3 test→ref matrix or None, inlier mask, inlier count)."""
+
+    probe: object = _probe
+
+
+_estimator = functools.partial(EstimatorSpec, "estimator")
+_CV = {"threshold": 3.0, "iterations": 2000, "confidence": 0.99, "refine_iters": 10}
+
+ESTIMATORS: Registry[EstimatorSpec] = Registry("estimator", [
+    _estimator("ransac", "RANSAC", SeededRansac, {"model": "similarity", "iterations": 2000, "threshold": 3.0}),
+    _estimator("cv_ransac", "cv RANSAC", functools.partial(OpenCVEstimator, "ransac"), _CV),
+    _estimator("cv_lmeds", "cv LMEDS", functools.partial(OpenCVEstimator, "lmeds"),
+               {k: v for k, v in _CV.items() if k != "threshold"}),
+    _estimator("magsac", "MAGSAC++", functools.partial(OpenCVEstimator, "magsac"), _CV),
+], spec=EstimatorSpec)
