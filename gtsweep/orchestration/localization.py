@@ -30,7 +30,9 @@ from gtsweep.orchestration.runner import RunStats
 from gtsweep.orchestration.settings import check_settings
 from gtsweep.orchestration.sweep import SweepOutcome, cell_summary
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
-from gtsweep.stages.mx_adapter import ESTIMATORS, MATCHERS, applicability as matcher_applicability
+from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.match import applicability as matcher_applicability
+from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.pairing import applicability
 
 log = logging.getLogger(__name__)
@@ -220,6 +222,7 @@ def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, 
             handle = _map_handle(maps, executor, grid, data, texture, method, map_refs[texture], cache_dir, stats)
             for shard in query_refs[texture]:
                 tracker[job]["remaining"] += 1
+                stats.pairing_tasks += 1
                 executor.submit(loctasks.query_shard, shard, handle, areas[texture], method,
                                 (matcher, grid.matchers[matcher]["params"]), estimators, experiment, seed,
                                 cache_dir, grid.declared, tag=("query", job))

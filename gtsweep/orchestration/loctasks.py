@@ -26,7 +26,8 @@ from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.tasks import counts, failure
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns
-from gtsweep.stages.mx_adapter import ESTIMATORS, MATCHERS
+from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.pairing import describe_timed
 
 MAP_FIELDS = ("xy", "angle", "descriptors", "image", "build_seconds")

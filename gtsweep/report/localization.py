@@ -56,7 +56,7 @@ def cell_table(summaries: list[dict]) -> Table:
                      "map MB": _num(largest.get("map_bytes"), 2, 1e-6),
                      "map kB/m2": _num(largest.get("map_bytes_per_m2"), 0, 1e-3),
                      "map build (s)": _num(largest.get("map_build_s"), 1), "reason": ""})
-    frame = pd.DataFrame(rows).set_index("pairing")
+    frame = pd.DataFrame(rows).set_index("pairing").fillna("")
     if not (frame["reason"] != "").any():
         frame = frame.drop(columns="reason")
     return Table("localization_cells", "Localization per cell: success [95 % CI], false localization, errors of "
