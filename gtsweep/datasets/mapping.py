@@ -266,13 +266,13 @@ def _posed(loader: str, dataset: Mapping, options: dict) -> LocalizationData:
 
 
 def covered_area(poses, shape) -> float:
-    """Floor area (map px²) covered by the footprints of ``poses`` (images of ``shape``), on a 1/4 raster."""
+    """Floor area (map px²) covered by the footprints of ``poses`` (images of ``shape``): their union rasterised
+    with cells of ``step`` px, ``step`` chosen to keep the raster near 4 million cells (1 px for small maps)."""
     corners = np.concatenate([geometry.footprint(p, shape) for p in poses]).astype(np.float64)
     low = corners.min(axis=0)
-    size = (np.ceil((corners.max(axis=0) - low) / 4) + 2).astype(int)
-    if size.prod() > 1 << 28:
-        raise BadInput("the map is too large to measure its area")
+    step = max(1.0, math.ceil(math.sqrt(np.prod(corners.max(axis=0) - low) / 4e6)))
+    size = (np.ceil((corners.max(axis=0) - low) / step) + 2).astype(int)
     canvas = np.zeros((size[1], size[0]), np.uint8)
     for pose in poses:
-        cv2.fillConvexPoly(canvas, np.rint((geometry.footprint(pose, shape) - low) / 4).astype(np.int32), 1)
-    return float(canvas.sum()) * 16.0
+        cv2.fillConvexPoly(canvas, np.rint((geometry.footprint(pose, shape) - low) / step).astype(np.int32), 1)
+    return float(canvas.sum()) * step * step

@@ -1,0 +1,168 @@
+"""experiment=localization (issue 19): a map of posed rendered views localizes a query rendered at a known pose
+within 1 px and 0.1 deg, rejects a query from another floor, and its grid gives NA and one-line errors for matchers
+and estimators as for detectors and descriptors."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.datasets import floors
+from gtsweep.datasets.geometry import centred_pose
+from gtsweep.datasets.mapping import check, covered_area, load_localization, map_poses
+from gtsweep.datasets.pairing import texture_rng
+from gtsweep.datasets.synthetic import render_view
+from gtsweep.evaluation.evaluate import detect_and_select
+from gtsweep.orchestration.localization import build_localization_grid
+from gtsweep.stages.describe import describe
+from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns, vote
+from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.pose import ESTIMATORS
+
+VIEW = (320, 240)  # (w, h)
+SHAPE = (240, 320)
+
+
+def _features(image):
+    keypoints, _, _ = detect_and_select(image, None, "sift", {}, "nms", {"n": 600})
+    kept, descriptors = describe(image, keypoints, "sift", "sift")
+    return kept, descriptors
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    """A 2 x 2 mapping run over a procedural asphalt floor (no noise), a query at a known pose inside it, and a
+    query at the same pose on another floor of the same texture."""
+    side = 900
+    floor = floors.make_floor("fine_asphalt", texture_rng(0, "fine_asphalt", "floor"), (side, side), 6.25)
+    other = floors.make_floor("fine_asphalt", texture_rng(1, "fine_asphalt", "floor"), (side, side), 6.25)
+    poses = map_poses(np.random.default_rng(0), 4, VIEW, 0.5, 0.0, (side / 2, side / 2))
+    parts = [(*_features(render_view(floor, p, SHAPE)), p, SHAPE, 0.0) for p in poses]
+    truth = centred_pose(side / 2 + 37.25, side / 2 - 21.5, 73.0, 1.0, SHAPE)
+    return build_map(parts), truth, _features(render_view(floor, truth, SHAPE)), \
+        _features(render_view(other, truth, SHAPE))
+
+
+def _localize(feature_map, features, voting=True):
+    index = MATCHERS.get("bf_ratio").build({}).index(feature_map.descriptors, "l2")
+    estimators = {"ransac": ESTIMATORS.get("ransac").build({})}
+    result = localize(*features, SHAPE, feature_map, index, estimators, Acceptance(10, 0.0), voting=voting)
+    return result["poses"]["ransac"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("voting", [True, False])
+def test_query_at_a_known_pose_is_localized_within_1_px_and_0_1_deg(rendered, voting):
+    feature_map, truth, query, _ = rendered
+    estimate, _, accepted = _localize(feature_map, query, voting)
+    verdict = judge(pose_columns(estimate.matrix, SHAPE), truth, SHAPE)
+    assert accepted and verdict["within"]
+    assert verdict["position_error"] < 1.0
+    assert verdict["orientation_error"] < 0.1
+
+
+@pytest.mark.slow
+def test_query_from_another_floor_is_rejected(rendered):
+    feature_map, _, _, foreign = rendered
+    estimate, _, accepted = _localize(feature_map, foreign)
+    assert not accepted
+    assert estimate.n_inliers < 10
+
+
+def test_pose_columns_and_judge_by_hand():
+    pose = centred_pose(100.0, 50.0, 0.0, 1.0, (11, 21))  # centre (10, 5) of a 21 x 11 image lands on (100, 50)
+    columns = pose_columns(pose, (11, 21))
+    assert columns["est_x"] == pytest.approx(100.0) and columns["est_y"] == pytest.approx(50.0)
+    assert columns["est_theta"] == pytest.approx(0.0)
+    turned = centred_pose(103.0, 54.0, -2.0, 1.0, (11, 21))  # matrix convention: atan2(P[1,0], P[0,0]) = +2 deg
+    verdict = judge(pose_columns(turned, (11, 21)), pose, (11, 21))
+    assert verdict["position_error"] == pytest.approx(5.0)
+    assert verdict["orientation_error"] == pytest.approx(2.0)
+    assert not verdict["within"]  # 2 deg > 1.5 deg
+    assert judge(pose_columns(None, (11, 21)), pose, (11, 21))["within"] is False
+
+
+def test_vote_keeps_the_consistent_matches():
+    """Three matches say "query centre at (500, 500), rotated 90 deg"; one says elsewhere."""
+    centre = (10.0, 10.0)
+    query_xy = np.array([[0.0, 0.0], [20.0, 0.0], [10.0, 30.0], [0.0, 0.0]])
+    rotation = np.array([[0.0, -1.0], [1.0, 0.0]])  # +90 deg in the matrix convention
+    map_xy = (query_xy - centre) @ rotation.T + 500.0
+    map_xy[3] = [900.0, 100.0]
+    kept = vote(query_xy, np.zeros(4), map_xy, np.full(4, 90.0), centre, cell=20.0)
+    assert kept.tolist() == [True, True, True, False]
+
+
+def test_build_map_keeps_each_floor_point_once():
+    """Two identical views: the second one's features all lie inside the first one's footprint."""
+    keypoints = np.zeros((3, 7))
+    keypoints[:, :2] = [[50.0, 50.0], [100.0, 60.0], [150.0, 100.0]]
+    keypoints[:, 3] = [10.0, -1.0, 350.0]
+    descriptors = np.arange(3 * 4, dtype=np.float32).reshape(3, 4)
+    pose = centred_pose(500.0, 500.0, 0.0, 1.0, SHAPE)
+    feature_map = build_map([(keypoints, descriptors, pose, SHAPE, 0.5), (keypoints, descriptors, pose, SHAPE, 0.25)])
+    assert len(feature_map) == 3 and feature_map.image.tolist() == [0, 0, 0]
+    assert np.allclose(feature_map.xy, keypoints[:, :2] + pose[:2, 2])
+    assert np.isnan(feature_map.angle[1]) and feature_map.angle[2] == pytest.approx(350.0)
+    assert feature_map.build_seconds.sum() == pytest.approx(0.75)
+    both = build_map([(keypoints, descriptors, pose, SHAPE, 0.5), (keypoints, descriptors, pose, SHAPE, 0.25)],
+                     dedupe=False)
+    assert len(both) == 6 and len(both.first(1)) == 3
+    assert both.nbytes == 6 * (2 * 4 + 4 + 4 * 4 + 4)
+
+
+def test_covered_area_of_two_half_overlapping_views():
+    a = centred_pose(500.0, 500.0, 0.0, 1.0, (100, 200))
+    b = centred_pose(600.0, 500.0, 0.0, 1.0, (100, 200))
+    assert covered_area([a, b], (100, 200)) == pytest.approx(300 * 100, rel=0.05)
+
+
+def test_localization_options_are_checked():
+    assert check({})["map_images"] == [4, 16]
+    with pytest.raises(BadInput, match="map_images"):
+        check({"map_images": [0]})
+    with pytest.raises(BadInput, match="map_overlap"):
+        check({"map_overlap": 1.0})
+    with pytest.raises(BadInput, match="loader"):
+        load_localization({"loader": "folder", "root": "/tmp"}, {})
+
+
+def _cfg(**groups):
+    base = {"detector": {"sift": {"params": {}}, "akaze": {"params": {}}}, "selector": {"nms": {"params": {}}},
+            "descriptor": {"sift": {"params": {}}, "akaze": {"params": {}}},
+            "matcher": {"bf_ratio": {"params": {}}}, "estimator": {"ransac": {"params": {}}},
+            "experiment": {"name": "localization"}, "seed": 0}
+    return OmegaConf.create({**base, **groups})
+
+
+def test_grid_marks_na_pairings_and_matchers():
+    grid = build_localization_grid(_cfg(matcher={"bf_ratio": {"params": {}},
+                                                 "flann": {"params": {"algorithm": "lsh"}}}))
+    reasons = {c.key: c.na_reason for c in grid.cells}
+    assert len(grid.cells) == 4 * 2  # pairings x matchers x estimators
+    assert "only describes" in reasons["sift__nms__akaze__bf_ratio__ransac"]
+    assert "lsh index needs HAMMING" in reasons["sift__nms__sift__flann__ransac"]  # a binary index for real-valued descriptors
+    assert reasons["akaze__nms__akaze__flann__ransac"] is None
+    assert reasons["sift__nms__sift__bf_ratio__ransac"] is None
+
+
+@pytest.mark.parametrize("groups, error, text", [
+    ({"matcher": {"nope": {"params": {}}}}, UnknownMethod, "unknown matcher 'nope'; valid choices"),
+    ({"estimator": {"ransac": {"params": {"iterations": 0}}}}, BadInput, "iterations"),
+    ({"matcher": {"bf_ratio": {"params": {"radius": 3}}}}, BadInput, "has no parameter 'radius'"),
+    ({"experiment": {"name": "localization", "min_inliers": 1}}, BadInput, "experiment.min_inliers"),
+])
+def test_grid_errors_are_one_line(groups, error, text):
+    with pytest.raises(error, match=text) as raised:
+        build_localization_grid(_cfg(**groups))
+    assert "\n" not in str(raised.value)
+
+
+def test_feature_map_of_first_images():
+    feature_map = FeatureMap(np.zeros((5, 2), np.float32), np.zeros(5, np.float32), np.zeros((5, 2), np.uint8),
+                             np.array([0, 0, 1, 2, 2], np.int32), np.array([1.0, 2.0, 3.0]))
+    assert len(feature_map.first(2)) == 3 and feature_map.first(2).build_seconds.tolist() == [1.0, 2.0]
+    assert math.isclose(feature_map.first(3).build_seconds.sum(), 6.0)
