@@ -53,7 +53,6 @@ def _localize(feature_map, features, voting=True):
     return result["poses"]["ransac"]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("voting", [True, False])
 def test_query_at_a_known_pose_is_localized_within_1_px_and_0_1_deg(rendered, voting):
     feature_map, truth, query, _ = rendered
@@ -64,7 +63,6 @@ def test_query_at_a_known_pose_is_localized_within_1_px_and_0_1_deg(rendered, vo
     assert verdict["orientation_error"] < 0.1
 
 
-@pytest.mark.slow
 def test_query_from_another_floor_is_rejected(rendered):
     feature_map, _, _, foreign = rendered
     estimate, _, accepted = _localize(feature_map, foreign)
@@ -166,3 +164,45 @@ def test_feature_map_of_first_images():
                              np.array([0, 0, 1, 2, 2], np.int32), np.array([1.0, 2.0, 3.0]))
     assert len(feature_map.first(2)) == 3 and feature_map.first(2).build_seconds.tolist() == [1.0, 2.0]
     assert math.isclose(feature_map.first(3).build_seconds.sum(), 6.0)
+
+
+def test_microgps_database_is_the_map_and_test_lists_are_unposed_queries(tmp_path):
+    from dataset_fixtures import microgps
+
+    microgps(tmp_path, "carpet", n=10)
+    microgps(tmp_path, "tiles", n=6)
+    data = load_localization({"loader": "microgps", "root": str(tmp_path)},
+                             {"n_queries": 2, "n_foreign": 1, "map_images": None})
+    assert sorted(data.maps) == ["carpet", "tiles"]
+    assert len(data.maps["carpet"]) == 8 and len(data.maps["tiles"]) == 4  # 2 held out each
+    own = [q for q in data.queries if q.texture == "carpet" and q.in_map]
+    assert sum(q.sample.pose is not None for q in own) == 2  # held out, with ground truth
+    assert sum(q.sample.pose is None for q in own) == 1  # the .test list: no pose, estimates only
+    foreign = [q for q in data.queries if q.texture == "carpet" and not q.in_map]
+    assert len(foreign) == 1 and foreign[0].sample.id.startswith("tiles/")
+    assert data.sizes("carpet") == [8] and data.px_per_mm == pytest.approx(6.25)
+
+
+def test_run_writes_per_query_rows_and_reuses_the_cached_map(tmp_path):
+    from gtsweep.orchestration.localization import run_localization
+
+    cfg = _cfg(detector={"akaze": {"params": {}}}, descriptor={"akaze": {"params": {}}},
+               estimator={"ransac": {"params": {}}, "cv_ransac": {"params": {}}},
+               dataset={"loader": "synthetic", "cache_dir": str(tmp_path / "c"), "view_size": [320, 240]},
+               experiment={"name": "localization", "textures": ["fine_asphalt"], "map_images": [1, 4],
+                           "n_queries": 2, "n_foreign": 1, "min_inliers": 10},
+               runner={"backend": "serial", "shard_size": 2},
+               cache={"enabled": True, "dir": str(tmp_path / "c" / "keypoints")})
+    first = run_localization(cfg, tmp_path / "run1")
+    assert [s["status"] for s in first.summaries] == ["ok", "ok"]
+    rows = __import__("pandas").read_csv(tmp_path / "run1" / "cells" / "akaze__nms__akaze__bf_ratio__ransac.csv")
+    assert len(rows) == 3 * 2  # queries x map sizes
+    assert {"query", "localized", "est_x", "est_y", "est_theta", "position_error", "t_query"} <= set(rows.columns)
+    assert rows.loc[rows.in_map == 0, "position_error"].isna().all()
+    assert rows.loc[rows.in_map == 0, "localized"].eq(0).all()  # the foreign floor is rejected
+    assert first.summaries[0]["metrics"]["false_localization"] == 0.0
+    assert first.stats.detection_tasks == 2  # 4 mapping images in shards of 2, once for both estimators
+    second = run_localization(cfg, tmp_path / "run2")
+    assert second.stats.detection_tasks == 0  # the map came from the map cache
+    assert second.summaries[0]["metrics"] == first.summaries[0]["metrics"] or math.isclose(
+        second.summaries[0]["metrics"]["localization_success"], first.summaries[0]["metrics"]["localization_success"])

@@ -250,14 +250,16 @@ def _posed(loader: str, dataset: Mapping, options: dict) -> LocalizationData:
         picks = np.unique(np.linspace(0, len(entries) - 1, options["n_queries"] + 2).round().astype(int)[1:-1]) \
             if options["n_queries"] and len(entries) > 2 else np.zeros(0, int)
         held[texture] = [entries[i] for i in picks]
-        maps[texture] = [Sample(e.listed_as, texture, str(e.path), e.pose) for i, e in enumerate(entries)
-                         if i not in set(picks.tolist())]
-    queries = [Query(Sample(e.listed_as, t, str(e.path), e.pose), t, True) for t in textures for e in held[t]]
-    queries += [Query(Sample(e.listed_as, t, str(e.path), None), t, True) for t in textures
+        maps[texture] = [Sample(f"{texture}/{e.listed_as}", texture, str(e.path), e.pose)
+                         for i, e in enumerate(entries) if i not in set(picks.tolist())]
+    queries = [Query(Sample(f"{t}/{e.listed_as}", t, str(e.path), e.pose), t, True) for t in textures
+               for e in held[t]]
+    queries += [Query(Sample(f"{t}/{e.listed_as}", t, str(e.path), None), t, True) for t in textures
                 for e in tests.get(t, [])[:options["n_unposed"]]]
     for k, texture in enumerate(textures):  # another texture's held-out images are not in this map
-        others = [e for t in textures[k + 1:] + textures[:k] for e in held[t]][:options["n_foreign"]]
-        queries += [Query(Sample(e.listed_as, texture, str(e.path), None), texture, False) for e in others]
+        others = [(t, e) for t in textures[k + 1:] + textures[:k] for e in held[t]][:options["n_foreign"]]
+        queries += [Query(Sample(f"{t}/{e.listed_as}", texture, str(e.path), None), texture, False)
+                    for t, e in others]
     ppm = float(options["px_per_mm"] or (MICROGPS_PX_PER_MM if loader == "microgps" else math.nan))
     listed = {t: [[s.id, s.path, np.round(s.pose, 9)] for s in maps[t]] for t in textures}
     asked = [[q.sample.id, q.texture, q.in_map] for q in queries]
