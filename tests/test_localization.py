@@ -142,7 +142,8 @@ def test_grid_marks_na_pairings_and_matchers():
     reasons = {c.key: c.na_reason for c in grid.cells}
     assert len(grid.cells) == 4 * 2  # pairings x matchers x estimators
     assert "only describes" in reasons["sift__nms__akaze__bf_ratio__ransac"]
-    assert "lsh index needs HAMMING" in reasons["sift__nms__sift__flann__ransac"]  # a binary index for real-valued descriptors
+    # a binary (LSH) index for real-valued descriptors
+    assert "lsh index needs HAMMING" in reasons["sift__nms__sift__flann__ransac"]
     assert reasons["akaze__nms__akaze__flann__ransac"] is None
     assert reasons["sift__nms__sift__bf_ratio__ransac"] is None
 

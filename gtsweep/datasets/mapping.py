@@ -250,8 +250,9 @@ def _posed(loader: str, dataset: Mapping, options: dict) -> LocalizationData:
         picks = np.unique(np.linspace(0, len(entries) - 1, options["n_queries"] + 2).round().astype(int)[1:-1]) \
             if options["n_queries"] and len(entries) > 2 else np.zeros(0, int)
         held[texture] = [entries[i] for i in picks]
-        maps[texture] = [Sample(f"{texture}/{e.listed_as}", texture, str(e.path), e.pose)
-                         for i, e in enumerate(entries) if i not in set(picks.tolist())]
+        kept = np.setdiff1d(np.arange(len(entries)), picks)
+        maps[texture] = [Sample(f"{texture}/{entries[i].listed_as}", texture, str(entries[i].path), entries[i].pose)
+                         for i in kept]
     queries = [Query(Sample(f"{t}/{e.listed_as}", t, str(e.path), e.pose), t, True) for t in textures
                for e in held[t]]
     queries += [Query(Sample(f"{t}/{e.listed_as}", t, str(e.path), None), t, True) for t in textures

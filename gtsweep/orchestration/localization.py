@@ -28,12 +28,12 @@ from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore
 from gtsweep.orchestration.runner import RunStats
 from gtsweep.orchestration.settings import check_settings
-from gtsweep.orchestration.sweep import SweepOutcome, cell_summary
+from gtsweep.orchestration.sweep import SweepOutcome, _write_run_record, cell_summary
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.pairing import applicability
+from gtsweep.stages.pose import ESTIMATORS
 
 log = logging.getLogger(__name__)
 EXPERIMENT = "localization"
@@ -186,6 +186,7 @@ def run_localization(cfg: Mapping, output_dir: str | Path, hooks=(), on_start=No
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
                            cache=cache_note)
     outcome.table = store.write_table(ordered)
+    _write_run_record(outcome, data)
     return outcome
 
 

@@ -27,8 +27,8 @@ from gtsweep.orchestration.tasks import counts, failure
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns
 from gtsweep.stages.match import MATCHERS
-from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.pairing import describe_timed
+from gtsweep.stages.pose import ESTIMATORS
 
 MAP_FIELDS = ("xy", "angle", "descriptors", "image", "build_seconds")
 
@@ -142,7 +142,8 @@ def _localize_all(cache, queries, full_map: FeatureMap, sizes, method, matcher, 
                               vote_cell=float(experiment.get("vote_cell", 60.0)), seed=seed)
             base = {"query": query["id"], "texture": query["texture"], "in_map": int(query["in_map"]),
                     **shared_map, "n_kp_test": len(keypoints), "n_described_test": len(kept),
-                    "n_matches": result["n_matches"], "n_voted": result["n_voted"], "t_detect": t_detect, "t_describe": t_describe,
+                    "n_matches": result["n_matches"], "n_voted": result["n_voted"], "t_detect": t_detect,
+                    "t_describe": t_describe,
                     "t_match": result["t_match"], "t_vote": result["t_vote"]}
             for name, (estimate, t_pose, accepted) in result["poses"].items():
                 rows[name].append({**base, **_judged(query, estimate, accepted, result["n_voted"], experiment),

@@ -132,7 +132,7 @@ def vote(query_xy: np.ndarray, query_angle: np.ndarray, map_xy: np.ndarray, map_
     votes = np.column_stack([np.cos(rho) * offset[:, 0] - np.sin(rho) * offset[:, 1],
                              np.sin(rho) * offset[:, 0] + np.cos(rho) * offset[:, 1]]) + map_xy
     cells = np.floor(votes / cell).astype(np.int64)
-    unique, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    unique, counts = np.unique(cells, axis=0, return_counts=True)
     top = unique[np.argmax(counts)]
     return np.all(np.abs(cells - top) <= 1, axis=1)
 
@@ -152,8 +152,9 @@ def localize(query_kps: np.ndarray, query_desc: np.ndarray, shape, feature_map: 
              acceptance: Acceptance, voting: bool = True, vote_cell: float = 60.0, seed: int = 0) -> dict:
     """Localize one query against ``feature_map`` through its matcher ``index`` (``index.match(desc) -> (M, 2)``
     of query and map feature indices) with every estimator of ``estimators`` (``{name: est}``, ``est.estimate(
-    query_xy, map_xy, seed) -> PoseEstimate``). Returns ``n_matches``, ``n_voted``, ``t_match``, ``t_vote`` and ``{"poses": {name: (PoseEstimate, seconds, accepted)}}``; ``n_voted`` matches (all without voting) reach the
-    estimators, and the inlier ratio of the acceptance rule is taken over them."""
+    query_xy, map_xy, seed) -> PoseEstimate``). Returns ``n_matches``, ``n_voted``, ``t_match``, ``t_vote`` and
+    ``{"poses": {name: (PoseEstimate, seconds, accepted)}}``; the ``n_voted`` matches (all of them without voting)
+    reach the estimators, and the inlier ratio of the acceptance rule is taken over them."""
     h, w = shape[:2]
     start = time.perf_counter()
     matches = np.asarray(index.match(query_desc), dtype=np.int64).reshape(-1, 2) if len(feature_map) and len(
