@@ -207,3 +207,24 @@ def test_run_writes_per_query_rows_and_reuses_the_cached_map(tmp_path):
     assert second.stats.detection_tasks == 0  # the map came from the map cache
     assert second.summaries[0]["metrics"] == first.summaries[0]["metrics"] or math.isclose(
         second.summaries[0]["metrics"]["localization_success"], first.summaries[0]["metrics"]["localization_success"])
+
+
+def test_report_rebuilds_from_a_localization_run(tmp_path, capsys):
+    from gtsweep.report.localization import is_localization, main
+
+    cells = tmp_path / "cells"
+    cells.mkdir()
+    summary = {"key": "k", "status": "ok", "experiment": "localization",
+               "methods": {"detector": "sift", "selector": "nms", "descriptor": "sift", "matcher": "flann",
+                           "estimator": "ransac"},
+               "metrics": {"localization_success": 0.5, "localization_success_ci_low": 0.1,
+                           "localization_success_ci_high": 0.9, "false_localization": 0.0, "t_query": 0.2},
+               "by_map_images": {"4.0": {"localization_success": 1.0, "t_query": 0.1, "map_bytes": 2e6},
+                                 "16.0": {"localization_success": 0.0, "t_query": 0.3, "map_bytes": 8e6}}}
+    (cells / "k.json").write_text(__import__("json").dumps(summary))
+    assert is_localization([str(tmp_path)]) and not is_localization([str(tmp_path), "--mlflow"])
+    assert main([str(tmp_path), "--no-plots"]) == 0
+    printed = capsys.readouterr().out
+    assert "| sift/sift | flann | ransac | 50 % [10 %, 90 %] | 0 % |" in printed
+    assert "| sift / sift / flann / ransac | 100 %, 100 ms | 0 %, 300 ms |" in printed
+    assert "| 8.00 |" in printed  # MB of the largest map
