@@ -19,6 +19,7 @@ from typing import Mapping
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import Choice, Range, check_all
+from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.orchestration import loctasks
 from gtsweep.orchestration.cache import cache_state
@@ -116,6 +117,7 @@ def build_localization_grid(cfg: Mapping) -> LocGrid:
     """The localization cells of ``cfg``; every setting and method checked first (one line on bad input)."""
     check_settings(cfg)
     check_all({"experiment": plain(cfg.get("experiment")) or {}}, SETTINGS)
+    check_data_options(plain(cfg.get("experiment")) or {})
     grid = LocGrid(plain(cfg.get("experiment")) or {}, resolve_group(cfg, "detector"),
                    resolve_group(cfg, "selector"), resolve_group(cfg, "descriptor"),
                    _methods(cfg, "matcher", MATCHERS), _methods(cfg, "estimator", ESTIMATORS))
