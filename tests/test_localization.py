@@ -228,3 +228,14 @@ def test_report_rebuilds_from_a_localization_run(tmp_path, capsys):
     assert "| sift/sift | flann | ransac | 50 % [10 %, 90 %] | 0 % |" in printed
     assert "| sift / sift / flann / ransac | 100 %, 100 ms | 0 %, 300 ms |" in printed
     assert "| 8.00 |" in printed  # MB of the largest map
+
+
+def test_hdground_pose_files_are_the_map(tmp_path):
+    from dataset_fixtures import hdground
+
+    hdground(tmp_path, "office_carpet", n=10)
+    data = load_localization({"loader": "hdground", "root": str(tmp_path)}, {"n_queries": 3, "map_images": None})
+    posed = [q for q in data.queries if q.sample.pose is not None]
+    assert len(posed) == 3 and all(q.in_map for q in posed)
+    assert len(data.maps["office_carpet"]) + 3 == 9  # one pose of the 10 is marked invalid
+    assert math.isnan(data.px_per_mm)  # HD Ground's README gives none: map bytes per m2 need experiment.px_per_mm

@@ -32,6 +32,7 @@ from gtsweep.core.errors import BadInput
 from gtsweep.datasets import floors, geometry, layout, photometric, synthetic
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Sample, fingerprint_of
+from gtsweep.datasets.hdground import lists_images, texture_of
 from gtsweep.datasets.pairing import texture_rng
 from gtsweep.datasets.posefiles import Problems, read_hdground_poses, read_image_list, read_microgps_database
 
@@ -228,18 +229,11 @@ def _posed(loader: str, dataset: Mapping, options: dict) -> LocalizationData:
             posed[texture] = read_microgps_database(folder / "database.txt", problems)
             tests[texture] = [e for f in sorted(folder.glob("*.test")) for e in read_image_list(f, [folder], problems)]
     else:
-        for file in sorted(root.rglob("*.txt")):
-            parts = file.relative_to(root).parts
-            texture = parts[0] if len(parts) > 1 else file.stem
-            try:
-                found, _ = read_hdground_poses(file, root, problems)
-            except BadInput:
-                continue  # a text file that is not a pose file
-            posed.setdefault(texture, []).extend(found)
+        for file in [f for f in sorted(root.rglob("*.txt")) if lists_images(f)]:
+            found, _ = read_hdground_poses(file, root, problems)  # poses marked invalid ("*") are left out
+            posed.setdefault(texture_of(file, root), []).extend(found)
         for file in sorted(root.rglob("*.test")):
-            parts = file.relative_to(root).parts
-            tests.setdefault(parts[0] if len(parts) > 1 else file.stem, []).extend(
-                read_image_list(file, [file.parent, root], problems))
+            tests.setdefault(texture_of(file, root), []).extend(read_image_list(file, [file.parent, root], problems))
     wanted = options["textures"] or dataset.get("textures")
     textures = opts.choose_textures({t for t, e in posed.items() if e}, wanted, root)
     if not textures:

@@ -20,6 +20,7 @@ from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import Choice, Range, check_all
 from gtsweep.datasets.mapping import check as check_data_options
+from gtsweep.datasets.core import read_gray
 from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.orchestration import loctasks
 from gtsweep.orchestration.cache import cache_state
@@ -199,10 +200,12 @@ def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, 
 
     size = int(runner_cfg.get("shard_size", 4))
     experiment = grid.experiment
-    mapping = {t: [{"image": s.load(), "pose": s.pose} for s in samples] for t, samples in data.maps.items()}
+    # mapping images are read in their tasks (a real map has thousands); the queries here, once
+    mapping = {t: [{"path": s.path, "pose": s.pose} for s in samples] for t, samples in data.maps.items()}
+    shapes = {t: read_gray(m[0]["path"]).shape for t, m in mapping.items() if m}
     queries = [{"id": q.sample.id, "texture": q.texture, "in_map": q.in_map, "pose": q.sample.pose,
                 "image": q.sample.load()} for q in data.queries]
-    areas = {t: {n: covered_area([s.pose for s in data.maps[t][:n]], mapping[t][0]["image"].shape) /
+    areas = {t: {n: covered_area([s.pose for s in data.maps[t][:n]], shapes[t]) /
                  (data.px_per_mm ** 2 * 1e6) for n in data.sizes(t)} for t in data.maps if data.maps[t]}
     map_refs = {t: [executor.put(m[i:i + size]) for i in range(0, len(m), size)] for t, m in mapping.items()}
     query_refs = {t: [executor.put(part[i:i + size]) for i in range(0, len(part), size)]

@@ -21,6 +21,7 @@ import numpy as np
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import config_hash
+from gtsweep.datasets.core import read_gray
 from gtsweep.orchestration.cache import KeypointCache, detect_cached, library_versions
 from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.tasks import counts, failure
@@ -69,15 +70,16 @@ def _detect_describe(cache: KeypointCache, image, method: dict):
 
 
 def map_shard(images: list[dict], method: dict, cache_dir: str | None, declared: dict | None = None) -> dict:
-    """Features of mapping images (``{"image", "pose"}`` each): ``{"parts": [(keypoints, descriptors, pose, shape,
-    seconds)], **cache counts}``, or a failure."""
+    """Features of mapping images (``{"path", "pose"}`` each, read here): ``{"parts": [(keypoints, descriptors,
+    pose, shape, seconds)], **cache counts}``, or a failure (an unreadable image: the cell's one-line error)."""
     cache = KeypointCache(cache_dir)
     try:
         declare(declared or {})
         parts = []
         for item in images:
-            _, kept, descriptors, t_detect, t_describe = _detect_describe(cache, item["image"], method)
-            parts.append((kept, descriptors, item["pose"], item["image"].shape, t_detect + t_describe))
+            image = read_gray(item["path"])
+            _, kept, descriptors, t_detect, t_describe = _detect_describe(cache, image, method)
+            parts.append((kept, descriptors, item["pose"], image.shape, t_detect + t_describe))
     except Exception as e:
         return {**failure(e), **counts(cache)}
     return {"parts": parts, **counts(cache)}
