@@ -49,6 +49,8 @@ def test_same_seed_same_answer_and_too_few_points(name):
     estimator = ESTIMATORS.get(name).build()
     first, again = estimator.estimate(test, ref, seed=1), estimator.estimate(test, ref, seed=1)
     assert np.array_equal(first.matrix, again.matrix) and np.array_equal(first.inliers, again.inliers)
+    big = estimator.estimate(test, ref, seed=2**63 + 5)  # a view's seed (core.seeds.stable_seed) is 64-bit
+    assert big.matrix is not None and big.n_inliers > 0
     none = estimator.estimate(test[:1], ref[:1], seed=0)
     assert none.matrix is None and none.n_inliers == 0 and none.inliers.shape == (1,)
 
@@ -97,3 +99,14 @@ def test_registry_params_are_strict_and_checked():
         ESTIMATORS.get("ransac").check({"model": "affine"})
     with pytest.raises(UnknownMethod, match="valid choices: cv_lmeds, cv_ransac, magsac, ransac"):
         ESTIMATORS.get("lo_ransac")
+
+
+@pytest.mark.parametrize("name", ["ransac", "cv_ransac", "cv_lmeds", "magsac"])
+def test_degenerate_correspondences_give_no_estimate(name):
+    # every test point at one place: no similarity maps it onto ten different reference points (OpenCV answers
+    # such samples with a singular matrix, which the estimators report as no estimate)
+    ref = np.random.default_rng(0).uniform(0, 100, (10, 2))
+    estimator = ESTIMATORS.get(name).build()
+    for test, reference in ((np.full((10, 2), 5.0), ref), (ref, np.full((10, 2), 5.0))):
+        estimate = estimator.estimate(test, reference, seed=1)
+        assert estimate.matrix is None and estimate.n_inliers == 0

@@ -146,7 +146,8 @@ def _graph(executor, image) -> list:
     assert sorted(results) == sorted(tags)
     frames = []
     for tag in tags:
-        rows = pd.DataFrame(results[tag]["rows"])
+        result = results[tag] if tag[0] == "detect" else results[tag]["by_method"][("bf_ratio", "ransac")]
+        rows = pd.DataFrame(result["rows"])
         frames.append(rows[[c for c in rows.columns if not c.startswith("t_")]])
     return frames
 

@@ -32,6 +32,7 @@ from gtsweep.core.interrupts import Interrupted
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
+from gtsweep.orchestration.results import swept_variants
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
 from gtsweep.report.tables import Table, frame, sample_note, write_report
 
@@ -147,10 +148,12 @@ def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:
 
 
 def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
-    """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns."""
+    """Per transform: the experiment's headline metric, detector rows x descriptor (or selector) columns; the
+    descriptor columns split by matcher and estimator when the grid has several."""
     table = frame(outcome.summaries)
     metric = schema.headline(outcome.grid.experiment["name"])
-    columns = "selector" if outcome.grid.experiment["name"] == "detection" else "descriptor"
+    columns = ["selector"] if outcome.grid.experiment["name"] == "detection" else \
+        ["descriptor", *swept_variants(outcome.summaries)]
     tables = {}
     for transform, part in table.groupby("transform", sort=False):
         values = part[metric] if metric in part else pd.Series(float("nan"), index=part.index)

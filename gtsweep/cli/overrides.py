@@ -220,6 +220,7 @@ def validate(args: list[str]) -> None:
             continue
         found, default = _default_value(key, args)
         if not found:
+            _moved(key)
             raise BadInput(f"unknown config key '{key}' (to add a new key write +{key}=...)")
         for value in _values(override, args):
             if default != "???" and not compatible(default, value):
@@ -228,6 +229,17 @@ def validate(args: list[str]) -> None:
                                f"like the default {default!r}, got {type(value).__name__}")
             if key in SETTINGS:  # its allowed values: before Hydra creates an output directory
                 SETTINGS[key].check(key, value)
+
+
+def _moved(key: str) -> None:
+    """A one-line BadInput for a setting that moved to a matcher's or an estimator's parameters."""
+    from gtsweep.orchestration.grid import MOVED
+
+    new = MOVED.get(key.removeprefix("experiment."))
+    if key.startswith("experiment.") and new:
+        group, name = new.split(".")[:2]
+        raise BadInput(f"'{key}' moved to the {group} group: write {new}=... ({group}={name} must be selected; "
+                       f"conf/{group}/{name}.yaml)")
 
 
 def force_add(args: list[str]) -> list[str]:

@@ -24,7 +24,7 @@ PRIMARY_MODULE = "gtsweep.cli.primary"
 PRIMARY = f"pkg://{PRIMARY_MODULE}"
 PRIMARY_NAME = "gtsweep"
 #: The config groups that hold a list of methods and span the grid.
-GRID_GROUPS = ("detector", "selector", "descriptor", "transform")
+GRID_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,13 @@
-"""The grid of a sweep: which cells (detector x selector x descriptor x transform) to evaluate, from a config.
+"""The grid of a sweep: which cells (detector x selector x descriptor x transform, and for matching and pose the
+matcher, and for pose the estimator) to evaluate, from a config.
 
 Each method's YAML params are merged onto its registry defaults (the full effective parameters, as results and
 MLflow record them) and the method is built once, so that a parameter it rejects stops the sweep here, in one
 line. A node with a ``factory`` declares a new method (:meth:`~gtsweep.core.registry.Registry.declare`); the
 grid carries these declarations (:attr:`Grid.declared`) to every process that runs its tasks.
 A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell
-only when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work.
+only when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work,
+and so is a matcher that cannot match a descriptor's kind (a FLANN index forced to KD-trees on binary descriptors).
 """
 from __future__ import annotations
 
@@ -19,7 +21,10 @@ from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.settings import check_settings
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
+from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.match import applicability as matcher_applicability
 from gtsweep.stages.pairing import applicability
+from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import SELECTORS
 
 EXPERIMENTS = ("detection", "matching", "pose")
@@ -27,28 +32,42 @@ TRANSFORM_KINDS = ("synthetic", "pairs")
 PAIR_TRANSFORMS = ("incremental", "absolute")
 #: The registry behind each grid group (the real-pair transforms have no parameters, so no entry).
 REGISTRIES: dict[str, Registry] = {"detector": DETECTORS, "selector": SELECTORS, "descriptor": DESCRIPTORS,
-                                   "transform": TRANSFORMS}
+                                   "transform": TRANSFORMS, "matcher": MATCHERS, "estimator": ESTIMATORS}
+#: The survey's matcher and estimator: a config without these groups (a script's, an older one) uses them.
+SURVEY_METHODS = {"matcher": "bf_ratio", "estimator": "ransac"}
+#: Settings that were the experiment's and are now a matcher's or an estimator's parameters (matching and pose).
+MOVED = {"ratio": "matcher.bf_ratio.params.ratio", "mutual": "matcher.bf_ratio.params.mutual",
+         "pose.model": "estimator.ransac.params.model", "pose.iterations": "estimator.ransac.params.iterations",
+         "pose.threshold": "estimator.ransac.params.threshold"}
 
 
 @dataclass(frozen=True)
 class Cell:
-    """One grid cell. ``descriptor`` is None for the detection experiment."""
+    """One grid cell. ``descriptor`` and ``matcher`` are None for the detection experiment, ``estimator`` for
+    detection and matching."""
 
     detector: str
     selector: str
     descriptor: str | None
     transform: str
     na_reason: str | None = None
+    matcher: str | None = None
+    estimator: str | None = None
 
     @property
     def key(self) -> str:
+        """``detector__selector__descriptor__transform``, then the matcher and the estimator where they are not the
+        survey's (``bf_ratio``, ``ransac``): a survey cell keeps its name (its files, its MLflow run)."""
         parts = [self.detector, self.selector, self.descriptor or "-", self.transform]
-        return "__".join(parts)
+        others = [m for m in (self.matcher, self.estimator) if m is not None and m not in SURVEY_METHODS.values()]
+        return "__".join(parts + others)
 
     @property
     def methods(self) -> dict:
-        return {"detector": self.detector, "selector": self.selector, "descriptor": self.descriptor,
-                "transform": self.transform}
+        """The cell's method names (matcher and estimator only where the experiment has them)."""
+        methods = {"detector": self.detector, "selector": self.selector, "descriptor": self.descriptor,
+                   "transform": self.transform}
+        return {**methods, **{k: v for k, v in (("matcher", self.matcher), ("estimator", self.estimator)) if v}}
 
 
 @dataclass
@@ -61,6 +80,8 @@ class Grid:
     descriptors: dict[str, dict]
     transforms: dict[str, dict]
     cells: list[Cell] = field(default_factory=list)
+    matchers: dict[str, dict] = field(default_factory=dict)
+    estimators: dict[str, dict] = field(default_factory=dict)
 
     @property
     def declared(self) -> dict[str, dict[str, dict]]:
@@ -69,9 +90,15 @@ class Grid:
                   "transform": self.transforms}
         return declared_methods(groups)
 
+    def matcher_params(self, name: str) -> dict:
+        return dict(self.matchers[name].get("params") or {})
+
+    def estimator_params(self, name: str) -> dict:
+        return dict(self.estimators[name].get("params") or {})
+
     def cell_config(self, cell: Cell, dataset_fingerprint: str, seed: int) -> dict:
-        """Everything that determines a cell's numbers."""
-        return {
+        """Everything that determines a cell's numbers (a matcher's and an estimator's config where it has them)."""
+        config = {
             "methods": cell.methods,
             "detector": self.detectors[cell.detector],
             "selector": self.selectors[cell.selector],
@@ -81,6 +108,11 @@ class Grid:
             "dataset": dataset_fingerprint,
             "seed": seed,
         }
+        if cell.matcher is not None:
+            config["matcher"] = self.matchers[cell.matcher]
+        if cell.estimator is not None:
+            config["estimator"] = self.estimators[cell.estimator]
+        return config
 
     def cell_hash(self, cell: Cell, dataset_fingerprint: str, seed: int) -> str:
         return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
@@ -173,22 +205,54 @@ def build_grid(cfg: Mapping) -> Grid:
     experiment = plain(cfg.get("experiment")) or {}
     if experiment.get("name") not in EXPERIMENTS:
         raise BadInput(f"experiment must be one of {', '.join(EXPERIMENTS)}, got {experiment.get('name')!r}")
+    name = experiment["name"]
+    if name != "detection":
+        _check_moved(experiment)
     grid = Grid(
         experiment=experiment,
         detectors=resolve_group(cfg, "detector"),
         selectors=resolve_group(cfg, "selector"),
-        descriptors=resolve_group(cfg, "descriptor") if experiment["name"] != "detection" else {},
+        descriptors=resolve_group(cfg, "descriptor") if name != "detection" else {},
         transforms=resolve_group(cfg, "transform"),
+        matchers=resolve_group(_surveys(cfg, "matcher"), "matcher") if name != "detection" else {},
+        estimators=resolve_group(_surveys(cfg, "estimator"), "estimator") if name == "pose" else {},
     )
     pairings = _pairings(cfg, grid)
+    combinations = [(m, e) for m in grid.matchers for e in (grid.estimators or [None])]
     for transform in grid.transforms:
         for selector in grid.selectors:
-            if experiment["name"] == "detection":
+            if name == "detection":
                 grid.cells += [Cell(d, selector, None, transform) for d in grid.detectors]
                 continue
             for detector, descriptor in pairings:
-                grid.cells.append(Cell(detector, selector, descriptor, transform, applicability(detector, descriptor)))
+                reason = applicability(detector, descriptor)
+                grid.cells += [Cell(detector, selector, descriptor, transform,
+                                    reason or _matcher_na(grid, matcher, descriptor), matcher, estimator)
+                               for matcher, estimator in combinations]
     return grid
+
+
+def _surveys(cfg: Mapping, group: str) -> Mapping:
+    """``cfg``, with the survey's method for ``group`` when it has no such group at all."""
+    if cfg.get(group) is not None:
+        return cfg
+    return {**cfg, group: {SURVEY_METHODS[group]: {"params": {}}}}
+
+
+def _check_moved(experiment: dict) -> None:
+    """A setting that moved to a matcher's or an estimator's parameters is one line naming its new place."""
+    for old, new in MOVED.items():
+        head, _, tail = old.partition(".")
+        node = experiment.get(head)
+        if (head in experiment and not tail) or (tail and isinstance(node, dict) and tail in node):
+            raise BadInput(f"experiment.{old} moved to the {new.split('.')[0]} group: set {new} instead "
+                           f"(conf/{new.split('.')[0]}/{new.split('.')[1]}.yaml)")
+
+
+def _matcher_na(grid: Grid, matcher: str, descriptor: str) -> str | None:
+    """Why ``matcher`` (with the grid's params) cannot match ``descriptor``'s vectors, else None."""
+    built = MATCHERS.get(matcher).build(grid.matcher_params(matcher))
+    return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm)
 
 
 def _pairings(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:

@@ -94,7 +94,26 @@ class ResultStore:
         return path
 
 
-METHOD_COLUMNS = ("detector", "selector", "descriptor", "transform")
+METHOD_COLUMNS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+#: Method columns beyond the survey's pairing: tables show them only when a sweep has several values of one.
+VARIANT_COLUMNS = ("matcher", "estimator")
+
+
+def swept_variants(summaries: list[dict]) -> list[str]:
+    """The variant columns (matcher, estimator) that take more than one value among ``summaries`` (a cell without
+    one, e.g. a detection cell, does not count)."""
+    return [k for k in VARIANT_COLUMNS if len({s["methods"].get(k) for s in summaries} - {None}) > 1]
+
+
+def by_variant(summaries: list[dict]) -> dict[tuple, list[dict]]:
+    """``summaries`` grouped by their swept (matcher, estimator) values, ``{((column, value), ...): [...]}``, in
+    first-seen order; one group, keyed ``()``, when neither is swept. Cells without them (detection) share a group
+    whose values are None."""
+    swept = swept_variants(summaries)
+    groups: dict[tuple, list[dict]] = {}
+    for s in summaries:
+        groups.setdefault(tuple((k, s["methods"].get(k)) for k in swept), []).append(s)
+    return groups
 
 
 def summary_table(summaries: list[dict]) -> pd.DataFrame:

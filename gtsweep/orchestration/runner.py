@@ -1,8 +1,9 @@
 """Evaluate a grid on a data set: a graph of detection and pairing tasks, run by an executor (Ray or serial).
 
 Images are loaded once per shard (and put to the executor once); one detection task per (shard, transform,
-detector, selector) feeds every descriptor's pairing task on that shard. A cell is finished when all its shards
-are; the ``on_cell`` callback then writes it (and logs it), so a killed sweep loses only the cells in flight.
+detector, selector) feeds every descriptor's pairing task on that shard; one pairing task per (shard, descriptor)
+serves every matcher and estimator cell of that descriptor (descriptors are computed once). A cell is finished when
+all its shards are; the ``on_cell`` callback then writes it (and logs it), so a killed sweep loses only the cells in flight.
 """
 from __future__ import annotations
 
@@ -20,7 +21,10 @@ from gtsweep.orchestration.shards import shard_kind
 
 @dataclass
 class PairingJob:
-    cell: Cell
+    """One pairing task: the cells of one (transform, detector, selector, descriptor) on one shard, one per
+    (matcher, estimator) combination."""
+
+    cells: list[Cell]
     shard: int
 
 
@@ -57,11 +61,13 @@ def plan(grid: Grid, n_shards: dict[str, int], pending: set[str]) -> list[Detect
     for (transform, detector, selector), cells in by_detection.items():
         for shard in range(n_shards[shard_kind(transform, grid.transforms[transform])]):
             job = DetectionJob(transform, detector, selector, shard)
+            by_descriptor: dict[str, list[Cell]] = defaultdict(list)
             for cell in cells:
                 if cell.descriptor is None:
                     job.cell = cell
                 else:
-                    job.pairings.append(PairingJob(cell, shard))
+                    by_descriptor[cell.descriptor].append(cell)
+            job.pairings = [PairingJob(same, shard) for same in by_descriptor.values()]
             jobs.append(job)
     return jobs
 
@@ -115,7 +121,7 @@ class _CellTracker:
         self.fed_by: dict[int, DetectionJob] = {}  # id(pairing job) -> its detection job
         self.ran: dict[int, tuple] = {}  # id(detection job) -> (started, ended)
         for job in jobs:
-            for cell in ([job.cell] if job.cell else []) + [p.cell for p in job.pairings]:
+            for cell in ([job.cell] if job.cell else []) + [c for p in job.pairings for c in p.cells]:
                 self.remaining[cell.key] += 1
                 self.cells[cell.key] = cell
             self.fed_by.update((id(p), job) for p in job.pairings)
@@ -127,13 +133,28 @@ class _CellTracker:
             started, ended = self.ran.get(id(self.fed_by[id(job)]), (None, None))
             result = {**result, "started": _first(started, result.get("started"), min),
                       "ended": _first(ended, result.get("ended"), max)}
-        cell = job.cell
-        if cell is None:  # a detection job that only feeds pairing cells
-            return
-        self.parts[cell.key][job.shard] = result
+        if isinstance(job, DetectionJob):
+            cells = [job.cell] if job.cell is not None else []  # none: it only feeds pairing cells
+        else:
+            cells = job.cells
+        for cell in cells:
+            self._add(cell, job.shard, _for_cell(result, cell))
+
+    def _add(self, cell: Cell, shard: int, result: dict) -> None:
+        self.parts[cell.key][shard] = result
         self.remaining[cell.key] -= 1
         if self.remaining[cell.key] == 0:
             self.on_cell(cell, _merge(self.parts.pop(cell.key)))
+
+
+def _for_cell(result: dict, cell: Cell) -> dict:
+    """A cell's share of a pairing task's result: its (matcher, estimator) entry, with when the task ran; a
+    failure of the whole task is every cell's."""
+    by_method = result.get("by_method")
+    if by_method is None:
+        return result
+    ran = {k: result[k] for k in ("started", "ended") if k in result}
+    return {**by_method[(cell.matcher, cell.estimator)], **ran}
 
 
 def _first(a, b, pick):
@@ -165,6 +186,9 @@ def _detection_args(grid: Grid, job: DetectionJob, seed: int, cache_dir):
 def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):
     from gtsweep.stages.describe import descriptor_params
 
-    cell = pairing.cell
+    cell = pairing.cells[0]
     params = descriptor_params(grid.descriptors[cell.descriptor], cell.detector)
-    return cell.detector, cell.descriptor, params, grid.experiment, seed, grid.declared
+    methods = {"matchers": {c.matcher: grid.matcher_params(c.matcher) for c in pairing.cells},
+               "estimators": {c.estimator: grid.estimator_params(c.estimator) for c in pairing.cells
+                              if c.estimator is not None}}
+    return cell.detector, cell.descriptor, params, grid.experiment, seed, grid.declared, methods

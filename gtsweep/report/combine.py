@@ -22,11 +22,11 @@ import pandas as pd
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
-from gtsweep.orchestration.results import summary_table
+from gtsweep.orchestration.results import VARIANT_COLUMNS, summary_table
 from gtsweep.report.tables import load_summaries, write_report
 
 SEED = re.compile(r"^\+*seed=(.*)$")
-METHODS = ["detector", "selector", "descriptor", "transform"]
+METHODS = ["detector", "selector", "descriptor", "transform", "matcher", "estimator"]
 
 
 def jobs_of(sweep_dir: Path) -> list[dict]:
@@ -126,7 +126,8 @@ def headline_markdown(summary: pd.DataFrame, jobs: list[dict], headlines) -> str
         part = summary[summary[f"{metric}_mean"].notna()]
         if part.empty:
             continue
-        columns = [c for c in ["setting", *METHODS] if c in part]
+        columns = [c for c in ["setting", *METHODS]
+                   if c in part and (c not in VARIANT_COLUMNS or part[c].nunique() > 1)]
         lines += [f"{metric}:", "", "| " + " | ".join([*columns, metric]) + " |", "|" + "---|" * (len(columns) + 1)]
         for row in part.itertuples(index=False):
             values = [str(getattr(row, c)) if pd.notna(getattr(row, c)) else "" for c in columns]

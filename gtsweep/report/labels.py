@@ -4,14 +4,27 @@ from __future__ import annotations
 
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import DETECTORS
+from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.pose import ESTIMATORS
 
 #: Our learned feature is compared with the survey's learned one.
 PAPER_NAME = {"xfeat": "LIFT"}
 
 
 def label(name: str) -> str:
-    spec = DETECTORS.get(name, None) or DESCRIPTORS.get(name, None)
+    spec = DETECTORS.get(name, None) or DESCRIPTORS.get(name, None) or MATCHERS.get(name, None) \
+        or ESTIMATORS.get(name, None)
     return spec.label if spec else name
+
+
+def variant_label(variant: tuple) -> str:
+    """``matcher FLANN, estimator MAGSAC++`` for a :func:`~gtsweep.orchestration.results.by_variant` key."""
+    return ", ".join(f"{column} {label(name)}" for column, name in variant if name)
+
+
+def variant_slug(variant: tuple) -> str:
+    """``flann_magsac``: a variant's part of a file name ("" for cells without a matcher and an estimator)."""
+    return "_".join(str(name) for _, name in variant if name)
 
 
 def paper_label(name: str) -> str:

@@ -21,8 +21,8 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import PACKAGE_DIR
 from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.orchestration.results import summary_table
-from gtsweep.report.labels import paper_label, shown_label
+from gtsweep.orchestration.results import by_variant, summary_table, swept_variants
+from gtsweep.report.labels import paper_label, shown_label, variant_label, variant_slug
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
 METHODS = ("detector", "selector", "descriptor", "transform")
@@ -221,10 +221,11 @@ def table_reference_counts(df: pd.DataFrame) -> Table | None:
 
 def table_cells(summaries: list[dict]) -> Table | None:
     """Every cell with each reported schema metric of its experiment: a new metric needs no other edit here."""
-    records = []
+    records, swept = [], swept_variants(summaries)
     for s in summaries:
         experiment, values = schema.experiment_of(s), s.get("metrics") or {}
-        record = {**{k: s["methods"].get(k) or "" for k in METHODS}, "experiment": experiment, "status": s["status"]}
+        record = {**{k: s["methods"].get(k) or "" for k in (*METHODS, *swept)}, "experiment": experiment,
+                  "status": s["status"]}
         record.update({m.name: fmt(values.get(m.name), None, m.digits) for m in schema.metrics_of(experiment)
                        if m.reported})
         records.append(record)
@@ -238,7 +239,16 @@ def table_cells(summaries: list[dict]) -> Table | None:
 
 
 def build_tables(summaries: list[dict]) -> list[Table]:
-    """Every survey table that the cells of ``summaries`` can fill."""
+    """Every survey table that the cells of ``summaries`` can fill; with several matchers or estimators, each
+    table once per (matcher, estimator), named and titled after it."""
+    groups = by_variant(summaries)
+    if len(groups) == 1:
+        return _survey_tables(summaries)
+    return [Table(f"{t.name}_{variant_slug(variant)}", f"{t.title}; {variant_label(variant)}", t.cells)
+            if variant_slug(variant) else t for variant, part in groups.items() for t in _survey_tables(part)]
+
+
+def _survey_tables(summaries: list[dict]) -> list[Table]:
     df = frame(summaries)
     if "descriptor" not in df:
         df["descriptor"] = None
@@ -264,10 +274,12 @@ def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True)
             path = out_dir / f"{table.name}{suffix}"
             path.write_text(text + ("\n" if not text.endswith("\n") else ""))
             files.append(path)
-    if plots:
+    if plots:  # with several matchers or estimators, one folder of plots per (matcher, estimator)
         from gtsweep.report.plots import write_plots
 
-        files += write_plots(summaries, out_dir)
+        groups = by_variant(summaries)
+        for variant, part in groups.items():
+            files += write_plots(part, out_dir / variant_slug(variant) if len(groups) > 1 else out_dir)
     return tables, files
 
 

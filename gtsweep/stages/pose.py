@@ -180,8 +180,9 @@ class OpenCVEstimator:
     """OpenCV's robust 2-D estimators. ``method``: ``ransac`` or ``lmeds`` run ``cv2.estimateAffinePartial2D``
     (a similarity, refined by Levenberg-Marquardt on the inliers for ``refine_iters`` steps); ``magsac`` runs
     ``cv2.estimateAffine2D(method=cv2.USAC_MAGSAC)`` and refits a similarity on its inliers
-    (:func:`similarity_lstsq`). ``cv2.setRNGSeed(seed)`` precedes every call, so a seed gives one answer.
-    LMEDS has no threshold: OpenCV derives its inlier bound from the median residual."""
+    (:func:`similarity_lstsq`). ``cv2.setRNGSeed`` (the seed's low 31 bits) precedes every call: a seed, one answer.
+    LMEDS has no threshold: OpenCV derives its inlier bound from the median residual. A singular model (scale 0,
+    which OpenCV may return for degenerate samples) is no estimate (``matrix`` None), as for :func:`estimate_pose`."""
 
     method: str = "ransac"
     threshold: float = 3.0
@@ -201,7 +202,7 @@ class OpenCVEstimator:
         if len(src) < (3 if self.method == "magsac" else 2):
             return none
         function, flag = _CV_METHODS[self.method]
-        cv2.setRNGSeed(int(seed))
+        cv2.setRNGSeed(int(seed) & _CV_SEED_MASK)  # OpenCV takes a C int; a view's seed is 64-bit
         matrix, mask = function(src, dst, method=flag, ransacReprojThreshold=float(self.threshold),
                                 maxIters=int(self.iterations), confidence=float(self.confidence),
                                 refineIters=int(self.refine_iters))
@@ -214,12 +215,16 @@ class OpenCVEstimator:
                 return none
         else:
             full = np.vstack([matrix, [0.0, 0.0, 1.0]])
+        if not abs(np.linalg.det(full[:2, :2])) > _SINGULAR:  # OpenCV's answer to degenerate samples: no estimate
+            return none
         return PoseEstimate(matrix=full, inliers=inliers, n_inliers=int(inliers.sum()))
 
 
 _CV_METHODS = {"ransac": (cv2.estimateAffinePartial2D, cv2.RANSAC),
                "lmeds": (cv2.estimateAffinePartial2D, cv2.LMEDS),
                "magsac": (cv2.estimateAffine2D, cv2.USAC_MAGSAC)}
+_CV_SEED_MASK = 0x7FFFFFFF
+_SINGULAR = 1e-12  # |det| of the 2x2 part at or below which a model maps the image to a line or a point
 _CV_NAMES = {"ransac": "cv_ransac", "lmeds": "cv_lmeds", "magsac": "magsac"}
 
 

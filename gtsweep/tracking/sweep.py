@@ -113,7 +113,8 @@ class SweepTracker:
         params = {**flatten({k: v for k, v in cell.methods.items() if v is not None}),
                   **flatten({"detector": config["detector"], "selector": config["selector"],
                              "descriptor": config["descriptor"], "transform": config["transform"],
-                             "experiment": config["experiment"]})}
+                             "experiment": config["experiment"],
+                             **{k: config[k] for k in ("matcher", "estimator") if k in config}})}
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
                 STATUS_TAG: summary["status"], **self.source}
         if summary.get("reason"):
@@ -220,6 +221,7 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
     for run in runs:
         params, tags = run.data.params, run.data.tags
         methods = {k: params.get(k) for k in ("detector", "selector", "descriptor", "transform")}
+        methods.update({k: params[k] for k in ("matcher", "estimator") if k in params})
         series = {name: schema.parse_series(name) for name in run.data.metrics}
         summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
                    "reason": tags.get(REASON_TAG), "experiment": experiment,

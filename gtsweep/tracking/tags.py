@@ -59,7 +59,10 @@ def _user() -> str:
 
 def cell_names(cells: Iterable, several_selectors: bool) -> dict[str, str]:
     """A short run name per cell key: ``sift·brief·inc`` (the selector too when the grid has several, or no
-    descriptor); the full key stays in the ``gtsweep.cell`` tag."""
+    descriptor; the matcher and the estimator when the grid has several, ``sift·brief·inc·flann·magsac``); the full
+    key stays in the ``gtsweep.cell`` tag."""
+    cells = list(cells)
+    several = [k for k in ("matcher", "estimator") if len({getattr(c, k, None) for c in cells}) > 1]
     names = {}
     for cell in cells:
         parts = [cell.detector]
@@ -68,6 +71,7 @@ def cell_names(cells: Iterable, several_selectors: bool) -> dict[str, str]:
         if cell.descriptor is not None:
             parts.append(cell.descriptor)
         parts.append(TRANSFORM_SHORT.get(cell.transform, cell.transform))
+        parts += [getattr(cell, k) for k in several if getattr(cell, k) is not None]
         names[cell.key] = SEPARATOR.join(parts)
     return names
 
