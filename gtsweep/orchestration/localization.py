@@ -25,7 +25,7 @@ from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.orchestration import loctasks
 from gtsweep.orchestration.cache import cache_state
 from gtsweep.orchestration.executor import backend, check_address, make_executor
-from gtsweep.orchestration.grid import _pairings, declared_methods, resolve_group
+from gtsweep.orchestration.grid import _pairings, _surveys, declared_methods, resolve_group
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore
 from gtsweep.orchestration.runner import RunStats
@@ -35,7 +35,6 @@ from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
 from gtsweep.stages.pairing import applicability
-from gtsweep.stages.pose import ESTIMATORS
 
 log = logging.getLogger(__name__)
 EXPERIMENT = "localization"
@@ -48,12 +47,11 @@ SETTINGS = {
     "experiment.max_position_error": Range(0, None, low_open=True),
     "experiment.max_orientation_error": Range(0, 180, low_open=True),
 }
-DEFAULT_GROUPS = {"matcher": "bf_ratio", "estimator": "ransac"}
 
 
 @dataclass(frozen=True)
 class LocCell:
-    """One cell; ``transform`` names the matcher and estimator (run names and tables read it)."""
+    """One cell; its ``transform`` is "map" (MLflow run names read it: ``sift·sift·map·flann·magsac``)."""
 
     detector: str
     selector: str
@@ -66,9 +64,7 @@ class LocCell:
     def key(self) -> str:
         return "__".join([self.detector, self.selector, self.descriptor, self.matcher, self.estimator])
 
-    @property
-    def transform(self) -> str:
-        return f"{self.matcher}+{self.estimator}"
+    transform = "map"
 
     @property
     def methods(self) -> dict:
@@ -95,23 +91,11 @@ class LocGrid:
     def cell_config(self, cell: LocCell, dataset_fingerprint: str, seed: int) -> dict:
         return {"methods": cell.methods, "detector": self.detectors[cell.detector],
                 "selector": self.selectors[cell.selector], "descriptor": self.descriptors[cell.descriptor],
-                "transform": {"matcher": self.matchers[cell.matcher], "estimator": self.estimators[cell.estimator]},
+                "transform": {}, "matcher": self.matchers[cell.matcher], "estimator": self.estimators[cell.estimator],
                 "experiment": self.experiment, "dataset": dataset_fingerprint, "seed": seed}
 
     def cell_hash(self, cell: LocCell, dataset_fingerprint: str, seed: int) -> str:
         return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
-
-
-def _methods(cfg: Mapping, group: str, registry) -> dict[str, dict]:
-    """The matchers or estimators of ``cfg`` (default: the survey's), params merged strictly and checked."""
-    node = plain(cfg.get(group)) or {DEFAULT_GROUPS[group]: {"params": {}}}
-    resolved = {}
-    for name in sorted(node):
-        settings = dict(node[name] or {})
-        method = registry.get(name)
-        settings["params"] = method.check(settings.get("params"))
-        resolved[name] = settings
-    return resolved
 
 
 def build_localization_grid(cfg: Mapping) -> LocGrid:
@@ -121,7 +105,8 @@ def build_localization_grid(cfg: Mapping) -> LocGrid:
     check_data_options(plain(cfg.get("experiment")) or {})
     grid = LocGrid(plain(cfg.get("experiment")) or {}, resolve_group(cfg, "detector"),
                    resolve_group(cfg, "selector"), resolve_group(cfg, "descriptor"),
-                   _methods(cfg, "matcher", MATCHERS), _methods(cfg, "estimator", ESTIMATORS))
+                   resolve_group(_surveys(cfg, "matcher"), "matcher"),
+                   resolve_group(_surveys(cfg, "estimator"), "estimator"))
     for detector, descriptor in _pairings(cfg, grid):
         norm = DESCRIPTORS.get(descriptor).norm
         for selector in grid.selectors:
