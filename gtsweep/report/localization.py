@@ -94,17 +94,22 @@ def plot_map_size(summaries: list[dict], out_dir: Path) -> list[Path]:
     if not pairings:
         return []
     fig, axes = plt.subplots(2, len(pairings), figsize=(4.2 * len(pairings), 6.5), squeeze=False)
+    estimators = sorted({s["methods"].get("estimator") for s in ok})
+    matchers = sorted({s["methods"].get("matcher") for s in ok})
+    dashes, markers = ("-", "--", ":", "-."), ("o", "s", "^", "v", "D")  # colour: estimator; dash, marker: matcher
     for column, (detector, descriptor) in enumerate(pairings):
         for s in ok:
             if (s["methods"]["detector"], s["methods"]["descriptor"]) != (detector, descriptor):
                 continue
             sizes = sorted(s["by_map_images"], key=float)
             x = [float(v) for v in sizes]
-            name = f"{s['methods'].get('matcher')}+{s['methods'].get('estimator')}"
+            matcher, estimator = s["methods"].get("matcher"), s["methods"].get("estimator")
+            k = matchers.index(matcher)
+            style = {"color": f"C{estimators.index(estimator) % 10}", "linestyle": dashes[k % 4],
+                     "marker": markers[k % 5], "label": f"{matcher}+{estimator}"}
             axes[0][column].plot(x, [s["by_map_images"][v].get("localization_success", math.nan) for v in sizes],
-                                 marker="o", label=name)
-            axes[1][column].plot(x, [1000 * s["by_map_images"][v].get("t_query", math.nan) for v in sizes],
-                                 marker="o", label=name)
+                                 **style)
+            axes[1][column].plot(x, [1000 * s["by_map_images"][v].get("t_query", math.nan) for v in sizes], **style)
         axes[0][column].set_title(f"{detector} / {descriptor}")
         axes[0][column].set_ylim(-0.05, 1.05)
         axes[0][column].set_ylabel("success (30 px, 1.5 deg)")
