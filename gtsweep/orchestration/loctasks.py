@@ -26,6 +26,7 @@ from gtsweep.orchestration.cache import KeypointCache, detect_cached, library_ve
 from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.tasks import counts, failure
 from gtsweep.stages.describe import DESCRIPTORS
+from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.pairing import describe_timed
@@ -129,6 +130,8 @@ def _localize_all(cache, queries, full_map: FeatureMap, sizes, method, matcher, 
     built = {name: ESTIMATORS.get(name).build(params) for name, params in estimators.items()}
     acceptance = Acceptance(int(experiment.get("min_inliers", 10)), float(experiment.get("min_inlier_ratio", 0.0)))
     features = [_detect_describe(cache, q["image"], method) for q in queries]
+    # voting reads keypoint orientations: a detector without them (Harris, FAST, ...) estimates from all matches
+    voting = bool(experiment.get("voting", True)) and DETECTORS.get(method["detector"]).orientation
     rows: dict[str, list] = {name: [] for name in estimators}
     for n_images, area_m2 in sorted(sizes.items()):
         feature_map = full_map.first(int(n_images))
@@ -140,7 +143,7 @@ def _localize_all(cache, queries, full_map: FeatureMap, sizes, method, matcher, 
                       "map_build_s": float(feature_map.build_seconds.sum()), "t_index": t_index}
         for query, (keypoints, kept, descriptors, t_detect, t_describe) in zip(queries, features):
             result = localize(kept, descriptors, query["image"].shape, feature_map, index, built,
-                              acceptance, voting=bool(experiment.get("voting", True)),
+                              acceptance, voting=voting,
                               vote_cell=float(experiment.get("vote_cell", 60.0)), seed=seed)
             base = {"query": query["id"], "texture": query["texture"], "in_map": int(query["in_map"]),
                     **shared_map, "n_kp_test": len(keypoints), "n_described_test": len(kept),
