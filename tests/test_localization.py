@@ -203,6 +203,8 @@ def test_run_writes_per_query_rows_and_reuses_the_cached_map(tmp_path):
     assert rows.loc[rows.in_map == 0, "localized"].eq(0).all()  # the foreign floor is rejected
     assert first.summaries[0]["metrics"]["false_localization"] == 0.0
     assert first.stats.detection_tasks == 2  # 4 mapping images in shards of 2, once for both estimators
+    again = run_localization(cfg, tmp_path / "run1")  # resume: finished cells with the same config are kept
+    assert again.resumed == 2 and again.summaries == first.summaries
     second = run_localization(cfg, tmp_path / "run2")
     assert second.stats.detection_tasks == 0  # the map came from the map cache
     assert second.summaries[0]["metrics"] == first.summaries[0]["metrics"] or math.isclose(
