@@ -91,9 +91,7 @@ def build_map(parts, dedupe: bool = True, margin: float = 16.0) -> FeatureMap:
         keep = _first_sighting(mapped, [(pose, shape) for _, _, pose, shape, _ in parts], margin)
     angles = [np.where(k[:, kp.ANGLE] >= 0, k[:, kp.ANGLE] + orientation(pose), np.nan) % 360.0
               for k, _, pose, _, _ in parts]
-    width = max(d.shape[1] for _, d, _, _, _ in parts)
-    dtype = parts[0][1].dtype
-    descriptors = [d if d.shape[1] == width else np.zeros((0, width), dtype) for _, d, _, _, _ in parts]
+    descriptors = [d for _, d, _, _, _ in parts]
     return FeatureMap(
         xy=np.concatenate([m[k] for m, k in zip(mapped, keep)]).astype(np.float32),
         angle=np.concatenate([a[k] for a, k in zip(angles, keep)]).astype(np.float32),
