@@ -69,7 +69,7 @@ class LocCell:
     @property
     def methods(self) -> dict:
         return {"detector": self.detector, "selector": self.selector, "descriptor": self.descriptor,
-                "matcher": self.matcher, "estimator": self.estimator}
+                "transform": self.transform, "matcher": self.matcher, "estimator": self.estimator}
 
 
 @dataclass

@@ -98,7 +98,10 @@ def combine(sweep_dir: str | Path, plots: bool = True) -> list[Path]:
             for s in by_job[job["job"]]:
                 cells.setdefault(s["key"], []).append(s)
         target = out / "report" / (_slug(setting) if len(settings) > 1 else "")
-        files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots)[1]
+        write = write_report
+        if headlines == {schema.headline("localization")}:  # experiment=localization: its own report
+            from gtsweep.report.localization import write_localization_report as write
+        files += write([mean_summary(v) for v in cells.values()], target, plots=plots)[1]
     return files
 
 
