@@ -15,10 +15,10 @@ run() { local name=$1 flags=(); shift; if [ "$1" = -m ]; then flags=(-m); shift;
 
 # XFeat's descriptor under the ratio test at 0.7 / 0.8 / 0.9 (incremental pairs), BRIEF beside it
 run xfeat_ratio -m 'detector=[tuned/censure,tuned/akaze]' 'descriptor=[xfeat,brief]' 'transform=[incremental]' \
-  experiment.ratio=0.7,0.8,0.9 "hydra.sweep.dir=$D/xfeat_ratio"
+  matcher.bf_ratio.params.ratio=0.7,0.8,0.9 "hydra.sweep.dir=$D/xfeat_ratio"
 # ... and with XFeat's own matcher: mutual nearest neighbours, no ratio test
 run xfeat_mutual 'detector=[tuned/censure,tuned/akaze]' 'descriptor=[xfeat,brief]' 'transform=[incremental]' \
-  experiment.ratio=1.0 experiment.mutual=true "hydra.run.dir=$D/xfeat_mutual"
+  "matcher=[mutual_nn]" "hydra.run.dir=$D/xfeat_mutual"
 # CenSurE with OpenCV's default parameters (table4_incremental uses the tuned ones)
 run censure_default 'detector=[censure]' 'descriptor=[orb,brief,latch]' 'transform=[incremental]' \
   "hydra.run.dir=$D/censure_default"
