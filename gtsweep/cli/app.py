@@ -84,6 +84,12 @@ def _optimize(cfg: DictConfig, output_dir: Path) -> None:
 
 def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
     tracker = None
+    run, report, summarize = run_sweep, write_report, format_outcome
+    if cfg.experiment.name == "localization":  # issue 19: a map per floor, queries against it
+        from gtsweep.orchestration.localization import run_localization
+        from gtsweep.report.localization import format_localization, write_localization_report
+
+        run, report, summarize = run_localization, write_localization_report, format_localization
     progress = Progress(enabled=cfg.runner.progress)
     try:
         hooks, on_start = (), None
@@ -95,11 +101,14 @@ def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
                                    nest_under=nest_under)
             hooks = (tracker.log_cell,)
             on_start = lambda grid, fingerprint: tracker.start(grid, fingerprint, library_versions())  # noqa: E731
-        outcome = run_sweep(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress,
+        outcome = run(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress,
                             on_checked=tracker.open if tracker is not None else None)
         progress.phase("report")
-        tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots,
-                                     views=load_views(output_dir), by=cfg.report.by, alpha=cfg.report.alpha)
+        if report is write_report:
+            tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots,
+                                         views=load_views(output_dir), by=cfg.report.by, alpha=cfg.report.alpha)
+        else:
+            tables, files = report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except GtsweepError as e:
@@ -118,7 +127,7 @@ def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
         kept = len(list((output_dir / "cells").glob("*.json")))
         exit_interrupted(signal, f"{kept} finished cell(s) kept in {output_dir}")
     progress.close()
-    summary = [format_outcome(outcome, tables), f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
+    summary = [summarize(outcome, tables), f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
     if tracker is not None:
         summary.append(tracker.ui_hint())
     log.info("\n".join(summary))

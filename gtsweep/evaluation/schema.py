@@ -28,17 +28,25 @@ import pandas as pd
 from gtsweep.core.errors import GtsweepError
 
 #: The experiments whose rows the schema describes, each extending the one before it.
-EXPERIMENTS = ("detection", "matching", "pose")
+EXPERIMENTS = ("detection", "matching", "pose", "localization")
 #: Columns that identify a view (not aggregated); the cell CSV keeps its transform too, so each row names its
-#: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a strength, pairs NaN; reference_count is
-#: the number of reference keypoints kept (survey Table 7), NaN without experiment.reference_counts.
+#: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a
+#: strength, pairs NaN; reference_count is the number of reference keypoints kept (survey Table 7), NaN without
+#: experiment.reference_counts.
 META = ("view", "image", "texture", "transform", "strength", "reference_count")
+#: Identity columns of a localization row (one per query and map size): the query image, whether its floor is in
+#: the map (0: a foreign floor that must be rejected), the map's size, and the estimated pose in map coordinates
+#: (map px of the query's centre; degrees, atan2(P[1, 0], P[0, 0]) of the image -> map pose; NaN when none).
+LOCALIZATION_META = ("query", "in_map", "map_images", "est_x", "est_y", "est_theta")
+META = META + LOCALIZATION_META
 #: Meta columns a cell is also aggregated per value of (``by_<step>`` in the summary, ``<metric>_vs_<step>``).
-STEP_KEYS = ("strength", "reference_count")
+STEP_KEYS = ("strength", "reference_count", "map_images")
 #: The metric the terminal summary shows, per experiment.
-HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success"}
+HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success",
+            "localization": "localization_success"}
 #: Metrics drawn against the transform strength, per experiment (report plots).
-CURVES = {"detection": ("repeatability",), "matching": ("precision",), "pose": ("pose_success", "precision")}
+CURVES = {"detection": ("repeatability",), "matching": ("precision",), "pose": ("pose_success", "precision"),
+          "localization": ("localization_success", "t_query")}
 AGGREGATIONS = ("mean", "ratio", "rate")
 SCHEMA_FILE = "gtsweep/evaluation/schema.py"
 
@@ -72,7 +80,7 @@ def _declare(*metrics: Metric) -> dict[str, Metric]:
     return {m.name: m for m in metrics}
 
 
-_DET, _MATCH, _POSE = EXPERIMENTS
+_DET, _MATCH, _POSE, _LOC = EXPERIMENTS
 METRICS: dict[str, Metric] = _declare(
     Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)",
            interval=True),
@@ -110,6 +118,33 @@ METRICS: dict[str, Metric] = _declare(
     Metric("t_describe", _MATCH, "s", "description time of reference and test image (not in the survey)", digits=3),
     Metric("t_match", _MATCH, "s", "matching time (not in the survey)", digits=3),
     Metric("t_pose", _POSE, "s", "pose estimation time (not in the survey)", digits=3),
+    # Absolute localization against a map (the survey's outlook; Micro-GPS, Zhang et al. ICRA 2019).
+    Metric("localized", _LOC, "share", "queries whose pose was accepted (experiment.min_inliers, min_inlier_ratio)",
+           aggregation="rate"),
+    Metric("localization_success", _LOC, "share", "in-map queries with ground truth localized within 30 px and "
+           "1.5 deg in map px (Micro-GPS' rule)", aggregation="rate", interval=True),
+    Metric("false_localization", _LOC, "share", "queries from a floor not in the map that were accepted (should "
+           "be 0)", aggregation="rate", interval=True),
+    Metric("wrong_localization", _LOC, "share", "in-map queries accepted with a pose outside 30 px / 1.5 deg",
+           aggregation="rate"),
+    Metric("success_position_error", _LOC, "px", "position error of the successful queries (map px)",
+           per_view=lambda r: r["position_error"].where(r["localization_success"] == 1), digits=2),
+    Metric("success_orientation_error", _LOC, "deg", "orientation error of the successful queries",
+           per_view=lambda r: r["orientation_error"].where(r["localization_success"] == 1), digits=3),
+    Metric("n_voted", _LOC, "matches", "matches kept by the voting step (all matches without voting)", digits=1),
+    Metric("inlier_ratio", _LOC, "share", "inliers / matches given to the estimator", reported=False),
+    Metric("t_vote", _LOC, "s", "voting time per query", digits=4, reported=False),
+    Metric("t_query", _LOC, "s", "time per query: detection, description, matching, voting, pose", digits=3,
+           interval=True),
+    Metric("t_index", _LOC, "s", "building the matcher's index of the map (once per map)", digits=3,
+           reported=False),
+    Metric("map_features", _LOC, "features", "features in the map", digits=0),
+    Metric("map_bytes", _LOC, "bytes", "memory of the map's features: descriptors, positions, orientations, ids",
+           digits=0),
+    Metric("map_bytes_per_m2", _LOC, "bytes/m2", "map memory per m2 of floor covered (data set's px/mm)",
+           digits=0),
+    Metric("map_build_s", _LOC, "s", "map build time: detection and description of every mapping image",
+           digits=2),
 )
 
 

@@ -80,9 +80,14 @@ def combine(sweep_dir: str | Path, plots: bool = True, by: str | None = None, al
             for key, rows in load_views(job["dir"]).items():
                 views.setdefault(key, []).append(rows.assign(repeat=job["job"]))
         target = out / "report" / (_slug(setting) if len(settings) > 1 else "")
-        files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots,
-                              views={k: pd.concat(v, ignore_index=True) for k, v in views.items()}, by=by,
-                              alpha=alpha)[1]
+        if headlines == {schema.headline("localization")}:  # experiment=localization: its own report
+            from gtsweep.report.localization import write_localization_report
+
+            files += write_localization_report([mean_summary(v) for v in cells.values()], target, plots=plots)[1]
+        else:
+            files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots,
+                                  views={k: pd.concat(v, ignore_index=True) for k, v in views.items()}, by=by,
+                                  alpha=alpha)[1]
     return files
 
 
