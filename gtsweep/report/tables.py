@@ -21,7 +21,7 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import PACKAGE_DIR
 from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.orchestration.results import by_variant, summary_table
+from gtsweep.orchestration.results import by_variant, summary_table, swept_variants
 from gtsweep.report.labels import paper_label, shown_label, variant_label, variant_slug
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
@@ -221,10 +221,11 @@ def table_reference_counts(df: pd.DataFrame) -> Table | None:
 
 def table_cells(summaries: list[dict]) -> Table | None:
     """Every cell with each reported schema metric of its experiment: a new metric needs no other edit here."""
-    records = []
+    records, swept = [], swept_variants(summaries)
     for s in summaries:
         experiment, values = schema.experiment_of(s), s.get("metrics") or {}
-        record = {**{k: s["methods"].get(k) or "" for k in METHODS}, "experiment": experiment, "status": s["status"]}
+        record = {**{k: s["methods"].get(k) or "" for k in (*METHODS, *swept)}, "experiment": experiment,
+                  "status": s["status"]}
         record.update({m.name: fmt(values.get(m.name), None, m.digits) for m in schema.metrics_of(experiment)
                        if m.reported})
         records.append(record)
@@ -238,7 +239,16 @@ def table_cells(summaries: list[dict]) -> Table | None:
 
 
 def build_tables(summaries: list[dict]) -> list[Table]:
-    """Every survey table that the cells of ``summaries`` can fill."""
+    """Every survey table that the cells of ``summaries`` can fill; with several matchers or estimators, each
+    table once per (matcher, estimator), named and titled after it."""
+    groups = by_variant(summaries)
+    if len(groups) == 1:
+        return _survey_tables(summaries)
+    return [Table(f"{t.name}_{variant_slug(variant)}", f"{t.title}; {variant_label(variant)}", t.cells)
+            if variant_slug(variant) else t for variant, part in groups.items() for t in _survey_tables(part)]
+
+
+def _survey_tables(summaries: list[dict]) -> list[Table]:
     df = frame(summaries)
     if "descriptor" not in df:
         df["descriptor"] = None
@@ -255,33 +265,21 @@ def build_tables(summaries: list[dict]) -> list[Table]:
 
 def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True) -> tuple[list[Table], list[Path]]:
     """Write every survey table and the per-cell table as .md, .tex and .csv (and the plots) into ``out_dir``;
-    returns the survey tables and every file. With several matchers or estimators, one report per (matcher,
-    estimator) in ``<out_dir>/<matcher>_<estimator>/``, its tables titled after them."""
-    groups = by_variant(summaries)
-    if len(groups) == 1:
-        return _write_set(summaries, Path(out_dir), plots)
-    tables, files = [], []
-    for variant, part in groups.items():
-        slug = variant_slug(variant)  # "" for cells without a matcher (detection): the top folder
-        found, written = _write_set(part, Path(out_dir) / slug, plots, f"; {variant_label(variant)}" if slug else "")
-        tables, files = tables + found, files + written
-    return tables, files
-
-
-def _write_set(summaries: list[dict], out_dir: Path, plots: bool, note: str = "") -> tuple[list[Table], list[Path]]:
+    returns the survey tables and every file."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tables, files, cells = build_tables(summaries), [], table_cells(summaries)
-    for table in tables:
-        table.title += note
     for table in tables + ([cells] if cells else []):
         for suffix, text in ((".md", table.markdown()), (".tex", table.latex()), (".csv", table.cells.to_csv())):
             path = out_dir / f"{table.name}{suffix}"
             path.write_text(text + ("\n" if not text.endswith("\n") else ""))
             files.append(path)
-    if plots:
+    if plots:  # with several matchers or estimators, one folder of plots per (matcher, estimator)
         from gtsweep.report.plots import write_plots
 
-        files += write_plots(summaries, out_dir)
+        groups = by_variant(summaries)
+        for variant, part in groups.items():
+            files += write_plots(part, out_dir / variant_slug(variant) if len(groups) > 1 else out_dir)
     return tables, files
 
 
