@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from gtsweep.evaluation import metrics
+from gtsweep.evaluation.reuse import DescribeOnce
 from gtsweep.evaluation.transforms import ViewPair
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.match import MATCHERS
-from gtsweep.stages.pairing import describe_timed
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import select
 
@@ -73,19 +73,21 @@ class Described:
 
 
 def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor_params: dict, detector: str,
-                  experiment: dict, reference_count: int | None = None) -> Described:
+                  experiment: dict, reference_count: int | None = None,
+                  memo: DescribeOnce | None = None) -> Described:
     """Describe both images of a pair once (every matcher and estimator of a grid reuses the result).
 
     ``reference_count`` keeps only the strongest reference keypoints (survey Table 7) and
     ``experiment["test_count"]`` the strongest test keypoints; the selectors sort keypoints by response. Raises
-    :class:`~gtsweep.core.errors.NotApplicable` for the survey's NA pairings.
+    :class:`~gtsweep.core.errors.NotApplicable` for the survey's NA pairings. ``memo``: a task's
+    :class:`~gtsweep.evaluation.reuse.DescribeOnce`, so images seen before (a reference under several strengths,
+    several reference counts) are not described again.
     """
-    if reference_count is not None:
-        ref_kps = ref_kps[:reference_count]
+    memo = memo or DescribeOnce(descriptor, detector, descriptor_params)
     if experiment.get("test_count") is not None:
         test_kps = test_kps[:experiment["test_count"]]
-    ref_kept, ref_desc, t_ref = describe_timed(view.reference, ref_kps, descriptor, detector, **descriptor_params)
-    test_kept, test_desc, t_test = describe_timed(view.test, test_kps, descriptor, detector, **descriptor_params)
+    ref_kept, ref_desc, t_ref = memo.describe(view.reference, ref_kps, reference_count)
+    test_kept, test_desc, t_test = memo.describe(view.test, test_kps)
     return Described(ref_kept, ref_desc, test_kept, test_desc, t_ref + t_test)
 
 

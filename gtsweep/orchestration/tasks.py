@@ -24,6 +24,7 @@ from gtsweep.evaluation.evaluate import (
     pose_metrics,
     survey_methods,
 )
+from gtsweep.evaluation.reuse import DescribeOnce
 from gtsweep.evaluation.views import views
 from gtsweep.orchestration.cache import KeypointCache, detect_cached
 from gtsweep.orchestration.executor import describe_error
@@ -146,11 +147,13 @@ def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: 
     counts = experiment.get("reference_counts") or [None]
     norm, iou = DESCRIPTORS.get(descriptor).norm, experiment.get("iou_threshold", 0.5)
     results: dict[Combination, list[dict] | Exception] = {(m, e): [] for m in matchers for e in estimators}
+    memo = DescribeOnce(descriptor, detector, descriptor_params)  # every image of the shard described once
     for (meta, view), (ref, test), det_row in zip(views(shard, transform, transform_cfg, seed), keypoints,
                                                    detection_rows):
         view_seed = stable_seed(seed, meta["view"])
         for count in counts:
-            described = describe_pair(view, ref, test, descriptor, descriptor_params, detector, experiment, count)
+            described = describe_pair(view, ref, test, descriptor, descriptor_params, detector, experiment, count,
+                                      memo)
             base = {**det_row, "reference_count": count if count is not None else math.nan}
             for m, matcher in matchers.items():
                 live = [e for e in estimators if not isinstance(results[(m, e)], Exception)]

@@ -1,0 +1,39 @@
+"""Describe each image once per task: every transform strength that shares a reference image, every reference
+count of survey Table 7 (for the test image) and every matcher/estimator reuse the same descriptors.
+
+A memo keyed by the image's and the keypoints' content: only identical calls are shared. The descriptors of a
+subset of keypoints are not cut from those of a larger set, because some extractors describe a keypoint
+differently in a different set (OpenCV's SIFT builds its pyramid from the lowest octave among the keypoints it is
+given; AKAZE and KAZE read ``class_id``).
+"""
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from gtsweep.stages.pairing import describe_timed
+
+
+def _digest(array: np.ndarray) -> bytes:
+    array = np.ascontiguousarray(array)
+    return hashlib.blake2b(array.view(np.uint8).reshape(-1), digest_size=16).digest() + str(array.shape).encode()
+
+
+class DescribeOnce:
+    """A task's memo of described images: ``describe(image, keypoints, count)`` returns what
+    ``describe_timed(image, keypoints[:count], ...)`` returns (kept keypoints, descriptors, seconds), calling the
+    descriptor once per distinct (image, keypoints); ``seconds`` is the time of the call that computed them."""
+
+    def __init__(self, descriptor: str, detector: str, params: dict):
+        self.descriptor, self.detector, self.params = descriptor, detector, params
+        self._found: dict[tuple, tuple] = {}
+        self.computed = 0  # descriptor calls made (for tests and benchmarks)
+
+    def describe(self, image: np.ndarray, keypoints: np.ndarray, count: int | None = None):
+        chosen = np.asarray(keypoints) if count is None else np.asarray(keypoints)[:count]
+        key = (_digest(image), _digest(chosen))
+        if key not in self._found:
+            self._found[key] = describe_timed(image, chosen, self.descriptor, self.detector, **self.params)
+            self.computed += 1
+        return self._found[key]

@@ -1,0 +1,49 @@
+"""Describing once (gtsweep.evaluation.reuse): the same bytes as describing each keypoint set alone, one call each."""
+import numpy as np
+import pytest
+
+from gtsweep.core.errors import NotApplicable
+from gtsweep.evaluation.reuse import DescribeOnce
+from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
+from gtsweep.stages.detect import detect_timed
+from gtsweep.stages.pairing import describe_timed
+from gtsweep.stages.select import select
+
+
+def _texture() -> np.ndarray:
+    rng = np.random.default_rng(4)
+    noise = rng.normal(0, 1, (60, 80)).astype(np.float32)
+    import cv2
+
+    image = cv2.resize(noise, (320, 240), interpolation=cv2.INTER_CUBIC) + 0.3 * rng.normal(0, 1, (240, 320))
+    return np.clip(128 + 40 * image, 0, 255).astype(np.uint8)
+
+
+# every descriptor with a detector whose keypoints it describes (the survey's NA rules)
+PAIRINGS = [("sift", "sift"), ("surf", "surf"), ("orb", "orb"), ("akaze", "akaze"), ("kaze", "kaze"),
+            ("brisk", "brisk"), ("sift", "brief"), ("sift", "freak"), ("sift", "latch"), ("sift", "daisy"),
+            ("sift", "beblid"), ("sift", "teblid"), ("xfeat", "xfeat")]
+
+
+@pytest.mark.parametrize("detector, descriptor", PAIRINGS)
+def test_subsets_of_one_description_equal_describing_each_subset(detector, descriptor):
+    assert {d for _, d in PAIRINGS} == set(DESCRIPTORS.names())
+    image = _texture()
+    found, _ = detect_timed(image, detector, None)
+    keypoints = select(found, "nms", image.shape, n=300)
+    params = descriptor_params({"params": {}}, detector)
+    memo = DescribeOnce(descriptor, detector, params)
+    try:
+        for count in (None, 150, 40, 10):
+            kept, descriptors, _ = memo.describe(image, keypoints, count)
+            chosen = keypoints if count is None else keypoints[:count]
+            alone_kept, alone_descriptors, _ = describe_timed(image, chosen, descriptor, detector, **params)
+            assert np.array_equal(kept, alone_kept) and np.array_equal(descriptors, alone_descriptors)
+            assert descriptors.dtype == alone_descriptors.dtype
+    except NotApplicable as e:
+        pytest.fail(f"{detector}-{descriptor} should apply: {e}")
+    # one descriptor call per distinct keypoint set; equal content (another array) is found again
+    assert memo.computed == 4
+    memo.describe(image.copy(), keypoints.copy())
+    memo.describe(image.copy(), keypoints.copy(), 40)
+    assert memo.computed == 4
