@@ -9,8 +9,9 @@ from gtsweep.orchestration.results import ResultStore, summarize
 
 
 def fake_cell(directory, detector, descriptor, transform, outcomes, selector="nms", strengths=(None,),
-              textures=("gravel",), extra=None):
-    """Write one cell's per-view rows and summary: ``outcomes`` per pair (or image x strength) 0/1 success."""
+              textures=("gravel",), extra=None, variant=None):
+    """Write one cell's per-view rows and summary: ``outcomes`` per pair (or image x strength) 0/1 success;
+    ``variant``: e.g. ``{"matcher": "flann", "estimator": "magsac"}`` (in the methods and the key)."""
     rows = []
     per_texture = len(outcomes) // len(textures)
     for i, outcome in enumerate(outcomes):
@@ -21,10 +22,11 @@ def fake_cell(directory, detector, descriptor, transform, outcomes, selector="nm
                      "strength": math.nan if strength is None else float(strength), "pose_success": float(outcome),
                      **(extra(i) if extra else {})})
     rows = pd.DataFrame(rows)
-    key = f"{detector}__{selector}__{descriptor or 'none'}__{transform}"
+    variant = variant or {}
+    key = "__".join([detector, selector, descriptor or "none", transform, *variant.values()])
     experiment = "pose" if descriptor else "detection"
     summary = {"key": key, "methods": {"detector": detector, "selector": selector, "descriptor": descriptor,
-                                       "transform": transform}, "status": "ok", "experiment": experiment,
+                                       "transform": transform, **variant}, "status": "ok", "experiment": experiment,
                **summarize(rows, experiment)}
     ResultStore(directory).write_cell(key, summary, rows)
     return key

@@ -36,6 +36,7 @@ from gtsweep.orchestration.results import swept_variants
 from gtsweep.orchestration.sweep import SweepOutcome, run_sweep
 from gtsweep.report.output import write_report
 from gtsweep.report.samples import load_views
+from gtsweep.report.scale import scale_from_config
 from gtsweep.report.tables import Table, frame, sample_note
 
 log = logging.getLogger(__name__)
@@ -104,9 +105,11 @@ def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
         outcome = run(cfg, output_dir, hooks=hooks, on_start=on_start, progress=progress,
                             on_checked=tracker.open if tracker is not None else None)
         progress.phase("report")
+        scale = scale_from_config(OmegaConf.to_container(cfg, resolve=True))
         if report is write_report:
             tables, files = write_report(outcome.summaries, output_dir / "report", plots=cfg.report.plots,
-                                         views=load_views(output_dir), by=cfg.report.by, alpha=cfg.report.alpha)
+                                         views=load_views(output_dir), by=cfg.report.by, alpha=cfg.report.alpha,
+                                         scale=scale)
         else:
             tables, files = report(outcome.summaries, output_dir / "report", plots=cfg.report.plots)
         if tracker is not None:
@@ -127,7 +130,8 @@ def _sweep(cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
         kept = len(list((output_dir / "cells").glob("*.json")))
         exit_interrupted(signal, f"{kept} finished cell(s) kept in {output_dir}")
     progress.close()
-    summary = [summarize(outcome, tables), f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
+    summary = [summarize(outcome, tables), scale.line(),
+               f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
     if tracker is not None:
         summary.append(tracker.ui_hint())
     log.info("\n".join(summary))

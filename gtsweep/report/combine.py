@@ -26,6 +26,7 @@ from gtsweep.orchestration.results import VARIANT_COLUMNS, summary_table
 from gtsweep.report.breakdown import mean_summary
 from gtsweep.report.output import write_report
 from gtsweep.report.samples import load_views
+from gtsweep.report.scale import load_scale
 from gtsweep.report.tables import ALPHA, load_summaries
 
 SEED = re.compile(r"^\+*seed=(.*)$")
@@ -87,7 +88,7 @@ def combine(sweep_dir: str | Path, plots: bool = True, by: str | None = None, al
         else:
             files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots,
                                   views={k: pd.concat(v, ignore_index=True) for k, v in views.items()}, by=by,
-                                  alpha=alpha)[1]
+                                  alpha=alpha, scale=load_scale(jobs[0]["dir"]))[1]
     return files
 
 

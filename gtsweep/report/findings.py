@@ -28,6 +28,9 @@ from gtsweep.report.samples import compare, estimate
 from gtsweep.stages.detect import DETECTORS
 
 SYNTHETIC = tuple(TRANSFORMS)
+#: The survey's matcher and pose estimator (section 5: brute force + ratio test 0.7, RANSAC): with several
+#: variants in a run, the findings are judged on the cells of this one (never pooled across variants).
+SURVEY_VARIANT = {"matcher": "bf_ratio", "estimator": "ransac"}
 NOT_MEASURED, NOT_TESTABLE = "not measured", "not testable"
 MARGIN = 0.05  # "success stops growing": a gain below 0.05 (the survey's tables print two decimals)
 
@@ -331,6 +334,37 @@ def check(text: str, finding, frames: dict, views: dict, alpha: float) -> Findin
     return Finding(text, verdict, test, evidence)
 
 
+def survey_variant(frames: dict[str, pd.DataFrame]) -> tuple[dict[str, pd.DataFrame], str]:
+    """``frames`` reduced to one (matcher, estimator) variant, and a sentence saying which, so that no finding
+    pools cells that differ only in matcher or estimator: the survey's (:data:`SURVEY_VARIANT`) where a run has
+    it, else the first one seen. Cells without the column (detection) are kept. The sentence is empty when every
+    frame has only the survey's variant (or none)."""
+    chosen, left_out, shown = {}, 0, {}
+    for name, df in frames.items():
+        if df is None or not len(df):
+            chosen[name] = df
+            continue
+        keep = pd.Series(True, index=df.index)
+        for column, survey in SURVEY_VARIANT.items():
+            if column not in df or df[column].dropna().empty:
+                continue
+            values = list(dict.fromkeys(df[column].dropna()))
+            value = survey if survey in values else values[0]
+            keep &= df[column].isna() | (df[column] == value)
+            shown.setdefault(column, set()).add(value)
+        chosen[name], left_out = df[keep], left_out + int((~keep).sum())
+    if all(v == {SURVEY_VARIANT[k]} for k, v in shown.items()) and not left_out:
+        return chosen, ""
+    names = ", ".join(f"{k} {'/'.join(sorted(map(str, v)))}" for k, v in shown.items())
+    survey = all(v == {SURVEY_VARIANT[k]} for k, v in shown.items())
+    which = f"the survey's variant ({names})" if survey else \
+        f"{names} (the survey's bf_ratio + ransac was not run)"
+    dropped = f": {left_out} cell(s) of other matchers or estimators left out, never pooled" if left_out else ""
+    return chosen, f"Findings judged on {which} only{dropped}."
+
+
 def check_findings(frames: dict[str, pd.DataFrame], views: dict | None = None, alpha: float = 0.05) -> list[Finding]:
-    """Every survey finding on a reproduction: ``frames`` and ``views`` by preset name."""
+    """Every survey finding on a reproduction: ``frames`` and ``views`` by preset name; with several matchers or
+    estimators, on the survey's variant only (:func:`survey_variant`)."""
+    frames = survey_variant(frames)[0]
     return [check(text, finding, frames, views or {}, alpha) for text, finding in FINDINGS]

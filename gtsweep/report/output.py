@@ -21,6 +21,7 @@ from gtsweep.report.breakdown import (
 )
 from gtsweep.report.labels import variant_slug
 from gtsweep.report.samples import Views, load_views
+from gtsweep.report.scale import Scale, annotate, load_scale, scale_from_config
 from gtsweep.report.tables import (
     ALPHA,
     BY,
@@ -33,8 +34,9 @@ from gtsweep.report.tables import (
 
 
 def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots: bool, alpha: float,
-               note: str = "") -> tuple[list[Table], list[Path]]:
+               scale: Scale, note: str = "") -> tuple[list[Table], list[Path]]:
     tables = build_tables(summaries, views, alpha)
+    annotate(tables, scale)
     if note:
         for table in tables:
             table.title += note
@@ -50,27 +52,30 @@ def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots:
 
 
 def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True, views: Views | None = None,
-                 by: str | None = None, alpha: float = ALPHA) -> tuple[list[Table], list[Path]]:
+                 by: str | None = None, alpha: float = ALPHA,
+                 scale: Scale | None = None) -> tuple[list[Table], list[Path]]:
     """Write every survey table, the per-cell table and the per-strength table as .md, .tex and .csv (and the
     plots) into ``out_dir``, and with ``by="texture"`` all of them per texture into ``by_texture/<texture>/``;
-    returns the survey tables (over every texture) and every file. ``views``: the cells' per-view rows."""
+    returns the survey tables (over every texture) and every file. ``views``: the cells' per-view rows;
+    ``scale``: the run's px/mm and thresholds, stated in mm under the tables (None: Micro-GPS' scale, assumed)."""
     if by not in BY:
         raise GtsweepError(f"report.by must be one of {', '.join(str(b).lower() for b in BY)}, not {by!r}")
     out_dir = Path(out_dir)
-    tables, files = _write_set(summaries, views, out_dir, plots, alpha)
+    scale = scale or Scale()
+    tables, files = _write_set(summaries, views, out_dir, plots, alpha, scale)
     if by == "texture":
         if not views:
             raise GtsweepError("report.by=texture needs the cells' per-view rows (cells/*.csv)")
         for texture in textures(views):
             files += _write_set(texture_summaries(summaries, views, texture), texture_views(views, texture),
-                                out_dir / "by_texture" / texture, plots, alpha, f", texture {texture}")[1]
+                                out_dir / "by_texture" / texture, plots, alpha, scale, f", texture {texture}")[1]
     return tables, files
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gtsweep.report", description=__doc__.splitlines()[0])
     parser.add_argument("source", help="a sweep's output directory (it holds cells/ and results.csv), or with "
-                                       "--mlflow the id of a sweep's parent run")
+                                       "--mlflow the id of a sweep's parent run (a sweep or experiment=localization)")
     parser.add_argument("--mlflow", action="store_true", help="read the cells (and their per-view rows, the child "
                                                               "runs' artifacts) from MLflow child runs of SOURCE")
     parser.add_argument("--tracking-uri", help="MLflow store (default: $MLFLOW_TRACKING_URI or ./mlflow.db)")
@@ -85,17 +90,30 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out or ("report" if args.mlflow else Path(args.source) / "report"))
     try:
         if args.mlflow:
-            from gtsweep.tracking.sweep import summaries_from_mlflow, views_from_mlflow
+            from gtsweep.tracking.sweep import (
+                config_from_mlflow,
+                summaries_from_mlflow,
+                views_from_mlflow,
+            )
 
             summaries = summaries_from_mlflow(args.source, args.tracking_uri)
             views = views_from_mlflow(args.source, args.tracking_uri)
+            scale = scale_from_config(config_from_mlflow(args.source, args.tracking_uri))
         else:
             summaries, views = load_summaries(args.source), load_views(args.source)
-        tables, files = write_report(summaries, out, not args.no_plots, views, args.by, args.alpha)
+            scale = load_scale(args.source)
+        localization = bool(summaries) and all(s.get("experiment") == "localization" for s in summaries)
+        if localization:  # e.g. --mlflow of an experiment=localization run: its own report, no survey tables
+            from gtsweep.report.localization import write_localization_report
+
+            tables, files = write_localization_report(summaries, out, not args.no_plots)
+        else:
+            tables, files = write_report(summaries, out, not args.no_plots, views, args.by, args.alpha, scale)
     except GtsweepError as e:
         print(f"gtsweep.report: error: {e}", file=sys.stderr)
         return 2
     for table in tables:
         print(table.markdown(), end="\n\n")
+    print(scale.line(detection=not localization))
     print(f"{len(files)} files in {out}")
     return 0

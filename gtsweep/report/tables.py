@@ -67,6 +67,7 @@ class Table:
     cells: pd.DataFrame  # strings as shown: "ours ±half-width (paper)"
     values: list[dict] = field(default_factory=list)  # the numbers: row, column, ours, ci_low, ci_high, paper
     ties: Ties | None = None
+    note: str = ""  # a line below the table, e.g. the scale in mm (:func:`gtsweep.report.scale.annotate`)
 
     def markdown(self) -> str:
         frame = self.cells.reset_index()
@@ -75,6 +76,8 @@ class Table:
         lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
         if self.ties is not None and self.ties.describe():
             lines += ["", f"*{self.ties.describe()}*"]
+        if self.note:
+            lines += ["", f"*{self.note}*"]
         return "\n".join(lines)
 
     def show(self, row: str, column: str, cells: pd.DataFrame, metric: str, paper_value=None, digits: int = 2,
@@ -88,7 +91,7 @@ class Table:
 
     def latex(self) -> str:
         body = self.cells.reset_index().to_latex(index=False, escape=True)
-        return f"% {self.title}\n{body}"
+        return f"% {self.title}\n{body}" + (f"% {self.note}\n" if self.note else "")
 
 
 def load_summaries(source: str | Path) -> list[dict]:

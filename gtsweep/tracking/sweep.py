@@ -237,6 +237,22 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
     return sorted(summaries, key=lambda s: s["key"] or "")
 
 
+def config_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict | None:
+    """The resolved configuration a sweep logged on its parent run (``config.yaml``), or None without it."""
+    import tempfile
+
+    import yaml
+    from mlflow.exceptions import MlflowException
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri(None) if uri is None else uri)
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            return yaml.safe_load(Path(client.download_artifacts(parent_run_id, "config.yaml", tmp)).read_text())
+    except (MlflowException, OSError, yaml.YAMLError):  # no such artifact: the report assumes Micro-GPS' scale
+        return None
+
+
 def views_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict:
     """The per-view rows of a sweep's cells (each child run's ``<cell>.csv`` artifact) by cell key, for the
     report's intervals and paired tests; cells without the artifact are left out."""
