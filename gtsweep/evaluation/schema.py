@@ -41,6 +41,10 @@ LOCALIZATION_META = ("query", "in_map", "map_images", "est_x", "est_y", "est_the
 META = META + LOCALIZATION_META
 #: Meta columns a cell is also aggregated per value of (``by_<step>`` in the summary, ``<metric>_vs_<step>``).
 STEP_KEYS = ("strength", "reference_count", "map_images")
+#: Experiments whose rows repeat each view once per value of a step (localization: each query against every map
+#: size): their cell aggregates (and intervals) are those of the largest step value, so each view counts once;
+#: every value is in ``by_<step>``.
+HEADLINE_STEP = {"localization": "map_images"}
 #: The metric the terminal summary shows, per experiment.
 HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success",
             "localization": "localization_success"}
@@ -242,6 +246,17 @@ def check_columns(columns: Iterable[str], experiment: str | None) -> None:
 
 def _numbers(values: pd.Series) -> pd.Series:
     return pd.to_numeric(values, errors="coerce").astype(float)
+
+
+def headline_rows(rows: pd.DataFrame, experiment: str | None) -> pd.DataFrame:
+    """The rows a cell's aggregates are taken over: all, or those of the largest :data:`HEADLINE_STEP` value per
+    texture (each floor's own largest map: a real data set's floors have maps of different sizes)."""
+    step = HEADLINE_STEP.get(experiment)
+    if step is None or step not in rows or not rows[step].notna().any():
+        return rows
+    values = _numbers(rows[step])
+    largest = values.groupby(rows["texture"]).transform("max") if "texture" in rows else values.max()
+    return rows[values == largest]
 
 
 def aggregate(metric: Metric, rows: pd.DataFrame) -> float:

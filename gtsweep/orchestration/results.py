@@ -25,6 +25,10 @@ from gtsweep.evaluation import schema
 def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
     """A cell's aggregates by the schema (:mod:`gtsweep.evaluation.schema`), overall and per step value.
 
+    Overall means over every row, except for an experiment whose rows repeat each view per step value
+    (:data:`~gtsweep.evaluation.schema.HEADLINE_STEP`, localization: one row per query and map size): there the
+    overall aggregates and intervals are those of the largest map (each query once), the others in ``by_<step>``.
+
     Derived metrics are computed first; a column the schema does not declare for ``experiment`` (None: any
     experiment) raises :class:`~gtsweep.core.errors.GtsweepError`. Declared metrics absent from ``rows`` are skipped.
     """
@@ -35,13 +39,14 @@ def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
     def aggregates(part: pd.DataFrame) -> dict:
         return {m.name: schema.aggregate(m, part) for m in metrics}
 
-    summary = {"n_rows": int(len(rows)), "metrics": aggregates(rows)}
+    headline = schema.headline_rows(rows, experiment)  # localization: the largest map, each query once
+    summary = {"n_rows": int(len(rows)), "metrics": aggregates(headline)}
     for metric in metrics:
         if metric.interval:
-            low, high = schema.interval(metric, rows)
+            low, high = schema.interval(metric, headline)
             summary["metrics"][f"{metric.name}_ci_low"], summary["metrics"][f"{metric.name}_ci_high"] = low, high
-    summary["n_images"] = int(rows["image"].nunique()) if "image" in rows else 0
-    summary["n_views"] = int(rows["view"].nunique()) if "view" in rows else int(len(rows))  # pairs, or views
+    summary["n_images"] = int(headline["image"].nunique()) if "image" in headline else 0
+    summary["n_views"] = int(headline["view"].nunique()) if "view" in headline else int(len(headline))  # pairs
     for step in schema.STEP_KEYS:
         if step in rows and rows[step].notna().any():
             summary[f"by_{step}"] = {repr(float(value)): aggregates(group)

@@ -42,7 +42,9 @@ def cell_table(summaries: list[dict]) -> Table:
     rows = []
     for s in summaries:
         m = s.get("metrics") or {}
-        largest = (s.get("by_map_images") or {}).get(max(s.get("by_map_images") or {"nan": 0}, key=float), {})
+        # the largest map's values; without them (one map size: MLflow logs no series) the cell's own, which are
+        # the largest map's too (:func:`gtsweep.evaluation.schema.headline_rows`)
+        largest = (s.get("by_map_images") or {}).get(max(s.get("by_map_images") or {"nan": 0}, key=float)) or m
         if s["status"] != "ok":
             rows.append({**_label(s, several), "success": s["status"].upper(), "reason": s.get("reason", "")})
             continue
@@ -57,6 +59,7 @@ def cell_table(summaries: list[dict]) -> Table:
                      "map kB/m2": _num(largest.get("map_bytes_per_m2"), 0, 1e-3),
                      "map build (s)": _num(largest.get("map_build_s"), 1), "reason": ""})
     frame = pd.DataFrame(rows).set_index("pairing").fillna("")
+    frame = frame[[c for c in frame.columns if c != "reason"] + ["reason"]]  # last, even when an NA cell is first
     if not (frame["reason"] != "").any():
         frame = frame.drop(columns="reason")
     return Table("localization_cells", "Localization per cell: success [95 % CI], false localization, errors of "
@@ -167,6 +170,7 @@ def main(argv: list[str]) -> int:
     """``python -m gtsweep.report <localization output dir> [--out DIR] [--no-plots]``: rebuild its report."""
     import argparse
 
+    from gtsweep.report.scale import load_scale
     from gtsweep.report.tables import load_summaries
 
     parser = argparse.ArgumentParser(prog="python -m gtsweep.report", description=__doc__.splitlines()[0])
@@ -178,5 +182,6 @@ def main(argv: list[str]) -> int:
     tables, files = write_localization_report(load_summaries(args.source), out, not args.no_plots)
     for table in tables:
         print(table.markdown(), end="\n\n")
+    print(load_scale(args.source).line(detection=False))
     print(f"{len(files)} files in {out}")
     return 0
