@@ -33,6 +33,9 @@ CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gt
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
 
 
+VIEWS_TAG = "gtsweep.n_views"
+
+
 def step_scale(values) -> int:
     """Metric steps must be integers: strengths are used as they are when integral, else times 100."""
     return 1 if all(float(v).is_integer() for v in values) else 100
@@ -119,6 +122,8 @@ class SweepTracker:
                 STATUS_TAG: summary["status"], **self.source}
         if summary.get("reason"):
             tags[REASON_TAG] = str(summary["reason"])[:5000]
+        if summary.get("n_views") is not None:  # views (or pairs) per cell: the report's table titles say it
+            tags[VIEWS_TAG] = str(summary["n_views"])
         run = self.client.create_run(self.experiment_id, run_name=self.names.get(cell.key, cell.key), tags=tags,
                                      start_time=ms(summary.get("started")))
         now = ms(summary.get("ended")) or int(time.time() * 1000)
@@ -226,6 +231,8 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
         summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
                    "reason": tags.get(REASON_TAG), "experiment": experiment,
                    "metrics": {k: run.data.metrics[k] for k in schema.ordered(run.data.metrics) if not series[k]}}
+        if tags.get(VIEWS_TAG):
+            summary["n_views"] = int(tags[VIEWS_TAG])
         for name, (metric, step_key) in ((k, v) for k, v in series.items() if v):
             history = client.get_metric_history(run.info.run_id, name)
             scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
