@@ -87,8 +87,9 @@ def timed_sweep(cfg, out: Path):
     start = time.perf_counter()
     with PeakMemory() as memory:
         outcome = run_sweep(cfg, out)
-    print(f"    {memory.line()}; {outcome.stats.detection_tasks} detection + {outcome.stats.pairing_tasks} pairing tasks")
-    return time.perf_counter() - start, outcome
+    seconds = time.perf_counter() - start
+    return seconds, outcome, (f"    {memory.line()}; {outcome.stats.detection_tasks} detection + "
+                              f"{outcome.stats.pairing_tasks} pairing tasks")
 
 
 def _noop(value):
@@ -119,24 +120,27 @@ def bench(label: str, extra: list[str]) -> None:
         load_dataset(cfg.dataset)  # render the data set once, outside the timings
         bare = floor(cfg, -1)
         print(f"[{label}] bare OpenCV loop (the floor):       {bare:7.2f} s  (OpenCV's default threads)")
-        serial, outcome = timed_sweep(cfg, work / "serial")
+        serial, outcome, memory = timed_sweep(cfg, work / "serial")
         print(f"[{label}] gtsweep serial (cold cache):        {serial:7.2f} s  ({serial / bare:.2f}x the floor; "
               f"{len(outcome.summaries)} cells)")
+        print(memory)
         bare1 = floor(cfg, 1)
         print(f"[{label}] bare OpenCV loop, 1 thread:         {bare1:7.2f} s")
-        one, _ = timed_sweep(compose([f"cache.dir={work}/c1", "runner.num_cpus=1"]), work / "ray1")
+        one, _, memory1 = timed_sweep(compose([f"cache.dir={work}/c1", "runner.num_cpus=1"]), work / "ray1")
         print(f"[{label}] gtsweep Ray, 1 worker (cold):       {one:7.2f} s  ({one / bare1:.2f}x the 1-thread floor; "
               f"includes Ray's start)")
+        print(memory1)
         ray.shutdown()
         cfg2 = compose([f"cache.dir={work}/c2", "runner.num_cpus=2"])
-        two, outcome = timed_sweep(cfg2, work / "ray2")
+        two, outcome, memory2 = timed_sweep(cfg2, work / "ray2")
         print(f"[{label}] gtsweep Ray, 2 workers (cold):      {two:7.2f} s  ({two / bare:.2f}x the floor; "
               f"{one / two:.2f}x faster than 1 worker)")
+        print(memory2)
         per_task = task_overhead(dict(cfg2.runner))
         n_tasks = outcome.stats.detection_tasks + outcome.stats.pairing_tasks
         print(f"[{label}] Ray's cost per task (no-op tasks):  {per_task * 1e3:7.2f} ms  ({n_tasks} tasks: "
               f"{n_tasks * per_task:.2f} s of work, {n_tasks * per_task / 2 / two:.1%} of the 2-worker wall time)")
-        again, outcome = timed_sweep(cfg2, work / "ray2")
+        again, outcome, _ = timed_sweep(cfg2, work / "ray2")
         print(f"[{label}] re-running the finished sweep:      {again:7.2f} s  ({again / two:.1%} of its first run; "
               f"{outcome.resumed} cells kept)")
         ray.shutdown()
@@ -150,7 +154,7 @@ def main() -> None:
     args = parser.parse_args()
     bench("640x480", [])
     if args.survey:
-        bench("1288x964", ["dataset.view_size=[1288,964]"])
+        bench("1288x964", ["dataset=survey"])
 
 
 if __name__ == "__main__":
