@@ -19,7 +19,8 @@ def fake_cell(directory, detector, descriptor, transform, outcomes, selector="nm
         image, strength = i // len(strengths), strengths[i % len(strengths)]
         view = f"{texture}/{image:03d}" + ("" if strength is None else f"@{strength}")
         rows.append({"view": view, "image": f"{texture}/{image:03d}", "texture": texture,
-                     "strength": math.nan if strength is None else float(strength), "pose_success": float(outcome),
+                     "strength": math.nan if strength is None else float(strength),
+                     **({"pose_success": float(outcome)} if descriptor else {}),
                      **(extra(i) if extra else {})})
     rows = pd.DataFrame(rows)
     variant = variant or {}

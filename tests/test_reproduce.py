@@ -171,3 +171,21 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     assert "CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)" in text
     assert text.index("Hand-written explanation.") < text.index("## The tables") < text.index("| CenSurE |")
     assert (docs / "reproduction" / "table4_incremental.csv").exists()
+
+
+def test_selectors_that_both_keep_every_keypoint_are_not_compared(tmp_path):
+    # GFTT stops at 1000 corners: NMS and ANMS keep all 1000 (the same keypoints), bucketing keeps 600 and repeats
+    # worse on every one of 6 images; the finding compares NMS with bucketing only: p = 2/64 (the two all-one-way
+    # sign patterns of 6 images)
+    def rows(kept, repeatability):
+        return lambda i: {"n_detected": 1000.0, "n_kp_test": kept, "repeatability": repeatability}
+
+    textures = ("gravel", "wood", "tiles", "carpet", "concrete", "grass")
+    for selector, kept, rep in (("nms", 1000.0, 0.6), ("anms", 1000.0, 0.6), ("bucketing", 600.0, 0.5)):
+        fake_cell(tmp_path, "gftt", None, "rotation", [0] * 6, selector=selector, textures=textures,
+                  extra=rows(kept, rep))
+    cells, views = _run(tmp_path)
+    found = _verdicts({"table2_selectors": cells}, {"table2_selectors": views})[
+        "NMS beats ANMS and bucketing, except for MSER (Table 2)"]
+    assert "gftt NMS vs BUCKETING" in found.evidence and "ANMS" not in found.evidence
+    assert found.verdict == "holds" and "p = 0.031" in found.evidence and "n = 6" in found.evidence

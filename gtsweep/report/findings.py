@@ -134,13 +134,24 @@ def _survey_selector(detector: str, by_selector: dict) -> str:
     return next((s for s in preferred if s in by_selector), next(iter(by_selector)))
 
 
+def _keeps_all(cells: pd.DataFrame) -> bool:
+    """True when a selector kept every detected keypoint in each of its cells (nothing was selected)."""
+    return {"n_detected", "n_kp_test"} <= set(cells) and bool((cells["n_kp_test"] >= cells["n_detected"]).all())
+
+
 def nms_beats_other_selectors(d: dict[str, Data]):
+    """NMS (ANMS for MSER) against the better of the other two selectors, per detector. A selector that, like the
+    survey's one, kept every keypoint (e.g. GFTT, which stops at 1000 corners) holds the same keypoints: that is
+    no comparison of selection methods, and it is left out."""
     data = d["table2_selectors"]
     parts = []
     for det, sel in _selector_cells(data).items():
         mine = "anms" if det == "mser" else "nms"
-        others = {s: c for s, c in sel.items() if s in {"nms", "anms", "bucketing"} - {mine}}
-        if mine not in sel or len(others) < 2:
+        if mine not in sel or len({"nms", "anms", "bucketing"} & set(sel)) < 3:
+            continue
+        others = {s: c for s, c in sel.items() if s in {"nms", "anms", "bucketing"} - {mine}
+                  and not (_keeps_all(c) and _keeps_all(sel[mine]))}
+        if not others:
             continue
         rival = _best(data, others, "repeatability")
         parts.append((f"{det} {mine.upper()} vs {rival.upper()}", sel[mine], others[rival], "repeatability",
