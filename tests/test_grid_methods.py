@@ -6,7 +6,7 @@ from sweep_helpers import compose_config, read_cells, tiny_overrides
 
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.evaluation import evaluate
+from gtsweep.evaluation import reuse
 from gtsweep.orchestration.grid import build_grid
 from gtsweep.orchestration.sweep import run_sweep
 from gtsweep.report.tables import build_tables, table_cells
@@ -100,13 +100,13 @@ def test_mlflow_names_carry_matcher_and_estimator_only_when_several():
 @pytest.mark.slow
 def test_every_matcher_and_estimator_on_one_description_per_pair(tmp_path, monkeypatch):
     calls = []
-    original = evaluate.describe_timed
+    original = reuse.describe_timed
 
     def counting(image, keypoints, descriptor, *args, **kwargs):
         calls.append(descriptor)
         return original(image, keypoints, descriptor, *args, **kwargs)
 
-    monkeypatch.setattr(evaluate, "describe_timed", counting)
+    monkeypatch.setattr(reuse, "describe_timed", counting)
     base = ["runner.backend=serial", "mlflow.enabled=false", "detector=[orb]", "descriptor=[orb]",
             "transform=[incremental]"]
     everything = run_sweep(compose_config(tiny_overrides(tmp_path, *base, "matcher=all", "estimator=all")),
