@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from sweep_helpers import (
@@ -105,26 +106,55 @@ def test_unavailable_method_stops_before_any_result_file(tmp_path, monkeypatch):
     assert not (tmp_path / "run").exists()
 
 
+_CLUSTER_RUN = """
+import sys
+import ray
+from ray.cluster_utils import Cluster
+from sweep_helpers import compose_config, tiny_overrides
+from gtsweep.orchestration.sweep import run_sweep
+from pathlib import Path
+
+tmp, grid = Path(sys.argv[1]), sys.argv[2:]
+cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+cluster.add_node(num_cpus=1)
+try:
+    cfg = compose_config(tiny_overrides(tmp, "runner.backend=ray", f"runner.address={cluster.address}",
+                                        f"cache.dir={tmp}/cache-cluster", *grid))
+    outcome = run_sweep(cfg, tmp / "cluster")
+    print(len({n["NodeID"] for n in ray.nodes() if n["Alive"]}), outcome.stats.cache_misses)
+finally:
+    ray.shutdown()
+    cluster.shutdown()
+"""
+
+
 @pytest.mark.slow
 def test_ray_two_node_cluster_gives_the_same_numbers_as_serial(tmp_path):
-    ray = pytest.importorskip("ray")
-    from ray.cluster_utils import Cluster
-
+    pytest.importorskip("ray")
     grid = ["detector=[akaze,sift]", "descriptor=[brief,sift]", "selector=[nms]", "transform=[absolute]",
             "mlflow.enabled=false"]
     serial = run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "serial")
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    cluster.add_node(num_cpus=1)
-    try:
-        cfg = compose_config(tiny_overrides(tmp_path, "runner.backend=ray", f"runner.address={cluster.address}",
-                                            f"cache.dir={tmp_path}/cache-cluster", *grid))
-        clustered = run_sweep(cfg, tmp_path / "cluster")
-        assert len({n["NodeID"] for n in ray.nodes() if n["Alive"]}) == 2
-    finally:
-        ray.shutdown()
-        cluster.shutdown()
-    assert clustered.stats.cache_misses == serial.stats.cache_misses
+    # in a process of its own: Ray 2.60 cannot join a cluster in a process that has run Ray before
+    env = {**cli_env(), "PYTHONPATH": os.pathsep.join([cli_env()["PYTHONPATH"], str(Path(__file__).parent)])}
+    done = subprocess.run([sys.executable, "-c", _CLUSTER_RUN, str(tmp_path), *grid], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    nodes, misses = map(int, done.stdout.split()[-2:])
+    assert nodes == 2 and misses == serial.stats.cache_misses
     assert_same_cells(tmp_path / "serial", tmp_path / "cluster")
+
+
+def test_joining_another_cluster_after_ray_ran_is_one_line(monkeypatch):
+    ray = pytest.importorskip("ray")
+    from gtsweep.core.errors import BadInput
+    from gtsweep.orchestration.executor import connect
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: True)
+    context = type("Context", (), {"gcs_address": "127.0.0.1:6379"})()
+    monkeypatch.setattr(ray, "get_runtime_context", lambda: context)
+    connect({"address": "local"})  # the Ray already running serves
+    with pytest.raises(BadInput, match="already ran Ray .* run the sweep in a new process"):
+        connect({"address": "10.0.0.9:6379"})
 
 
 @pytest.mark.slow

@@ -286,7 +286,10 @@ def connect(runner_cfg: Mapping) -> None:
         current = ray.get_runtime_context().gcs_address
         if address in ("local", "auto") or address.split("://")[-1] == current:
             return
-        ray.shutdown()  # connected elsewhere: the requested cluster wins
+        # Ray 2.60 hangs in its GCS client when a process that has run Ray joins another cluster after
+        # ray.shutdown(): say so instead (the CLI runs one sweep per process, so only library use meets this).
+        raise BadInput(f"this process already ran Ray (at {current}); joining the cluster at '{address}' after it "
+                       f"hangs in Ray {ray.__version__}: run the sweep in a new process")
     check_address(runner_cfg)
     options = ray_options(runner_cfg)
     on_sigterm = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
