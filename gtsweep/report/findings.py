@@ -224,7 +224,8 @@ def oriented_detectors_win_absolute(d):
     best = {}
     for det in {k.split("-")[0] for k in entries}:
         mine = {k: v for k, v in entries.items() if k.split("-")[0] == det}
-        best[det] = mine[_best(data, mine, "pose_success")] if _best(data, mine, "pose_success") else None
+        top = _best(data, mine, "pose_success")
+        best[det] = mine[top] if top else None
     oriented = [v for k, v in best.items() if v is not None and _oriented(k)]
     unoriented = [v for k, v in best.items() if v is not None and _oriented(k) is False]
     if not oriented or not unoriented:

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
-from gtsweep.core.memory import tree_rss
+from gtsweep.core.memory import PeakMemory
 from gtsweep.core.paths import PROJECT_DIR
 from gtsweep.report.findings import check_findings, survey_variant
 from gtsweep.report.samples import load_views
@@ -48,12 +48,12 @@ def run_preset(preset: str, overrides: list[str], work: Path, uri: str) -> dict:
     out = work / preset
     args = [sys.executable, "-m", "gtsweep", f"sweeps={preset}", *overrides, f"hydra.run.dir={out}",
             f"mlflow.tracking_uri={uri}", "runner.progress=false", f"cache.dir={work}/cache"]
-    start, peak = time.perf_counter(), 0
+    start = time.perf_counter()
     with open(work / f"{preset}.log", "w") as log:
         process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, cwd=work)
-        while process.poll() is None:
-            peak = max(peak, sum(tree_rss(process.pid).values()))
-            time.sleep(0.5)
+        with PeakMemory(pid=process.pid) as memory:  # the whole tree, every 0.5 s
+            process.wait()
+    peak = memory.total
     seconds = time.perf_counter() - start
     if process.returncode != 0:
         raise SystemExit(f"gtsweep.reproduce: preset {preset} failed (exit {process.returncode}); "
