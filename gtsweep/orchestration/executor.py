@@ -21,6 +21,7 @@ import traceback
 from collections import deque
 from typing import Any, Callable, Iterator, Mapping
 
+from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.interrupts import raise_pending
 
@@ -203,8 +204,11 @@ def ray_options(runner_cfg: Mapping) -> dict:
     options = {"include_dashboard": dashboard, "logging_level": RAY_LOG_LEVELS[level], "log_to_driver": True}
     if dashboard:
         options["dashboard_host"] = "127.0.0.1"
-    if runner_cfg.get("runtime_env"):
-        options["runtime_env"] = dict(runner_cfg["runtime_env"])
+    runtime_env = dict(runner_cfg.get("runtime_env") or {})
+    if os.environ.get(plugins.ENV):  # the user's plugins may be factories in the workers too (any cluster)
+        runtime_env["env_vars"] = {**(runtime_env.get("env_vars") or {}), plugins.ENV: os.environ[plugins.ENV]}
+    if runtime_env:
+        options["runtime_env"] = runtime_env
     return options
 
 
