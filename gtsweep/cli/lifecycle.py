@@ -152,7 +152,7 @@ def failure_cause(error: BaseException) -> str:
     kind = type(error).__name__
     module = type(error).__module__ or ""
     if "database is locked" in str(error):
-        return f"the MLflow store is locked by another process ({message})"
+        return "the MLflow store is locked by another process (database is locked)"
     if module.startswith("ray"):
         return f"the Ray cluster was lost ({kind}: {message})"
     if module.startswith(("mlflow", "sqlalchemy")):

@@ -12,6 +12,7 @@ when its cell's tasks ran, and holds the cell's per-view CSV; the jobs of a mult
 from __future__ import annotations
 
 import json
+import logging
 import math
 import sys
 import time
@@ -50,6 +51,8 @@ class SweepTracker:
         from mlflow.tracking import MlflowClient
 
         quiet_mlflow()
+        # a store error (locked, full) is the sweep's one line (gtsweep.cli.lifecycle), not MLflow's traceback
+        logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
         self.cfg = cfg
         self.uri = tracking_uri(cfg)
         self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
