@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import shlex
 import signal
@@ -20,6 +19,7 @@ import traceback
 from pathlib import Path
 from typing import Iterator
 
+from filelock import FileLock, Timeout
 from omegaconf import OmegaConf
 
 from gtsweep.core import interrupts
@@ -80,14 +80,13 @@ def claim(output_dir: Path) -> None:
     key = str(output_dir.resolve())
     if key in _held:
         return
-    handle = open(output_dir / LOCK_FILE, "a")
+    lock = FileLock(output_dir / LOCK_FILE, timeout=0)
     try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        handle.close()
+        lock.acquire()
+    except Timeout:
         raise BadInput(f"another gtsweep run is writing to {output_dir}; wait for it or choose another "
                        f"hydra.run.dir") from None
-    _held[key] = handle
+    _held[key] = lock
 
 
 @contextlib.contextmanager
