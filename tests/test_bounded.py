@@ -47,19 +47,21 @@ def test_a_second_owner_of_a_study_is_refused_and_a_dead_owner_frees_it(tmp_path
 @pytest.mark.slow
 def test_two_identical_studies_at_once_one_runs_the_other_stops_in_one_line(tmp_path):
     args = tiny_overrides(tmp_path, "experiment=optimize", "detector=[fast]", "runner.backend=serial",
-                          "experiment.n_startup_trials=2", "experiment.n_trials=4",
+                          "experiment.n_startup_trials=2", "experiment.n_trials=500",
                           "experiment.transforms.rotation.strengths=[45]", "experiment.transforms.noise.strengths=[20]",
                           f"experiment.storage=sqlite:///{tmp_path}/optuna.db", f"experiment.tuned_root={tmp_path}/t",
                           "mlflow.enabled=false")
-    first = _start(args, tmp_path)
+    first = _start(args, tmp_path)  # a long study: still running when the second one starts
     deadline = time.monotonic() + 120
     while not list(tmp_path.glob(".optuna-study-*.lock")) and time.monotonic() < deadline:
         time.sleep(0.1)
     second = _start(args, tmp_path)
     out2, err2 = second.communicate(timeout=300)
-    out1, err1 = first.communicate(timeout=600)
-    assert first.returncode == 0, err1[-2000:]
-    assert "UpdateFinishedTrialError" not in err1 + err2
+    time.sleep(3)
+    assert first.poll() is None, first.communicate()[1][-2000:]  # the first goes on, untouched
+    first.send_signal(signal.SIGINT)
+    out1, err1 = first.communicate(timeout=120)
+    assert first.returncode == 130 and "UpdateFinishedTrialError" not in err1, err1[-2000:]
     assert second.returncode == 2 and len(err2.strip().splitlines()) == 1, err2
     assert "is being optimised by another run right now" in err2
 
