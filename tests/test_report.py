@@ -235,3 +235,27 @@ def test_plots_per_texture_with_interval_bands(tmp_path):
     # AKAZE-BRIEF on rotation: 8/8 at 0 (Wilson [0.676, 1]), 0/8 at 90 ([0, 0.324])
     lows, highs = _band(cell, "strength", "pose_success", [0.0, 90.0], load_views(run))
     assert lows == pytest.approx([0.676, 0.0], abs=1e-3) and highs == pytest.approx([1.0, 0.324], abs=1e-3)
+
+
+def test_heatmap_cells_show_value_interval_and_na_and_curves_count_views_per_point(tmp_path, monkeypatch):
+    from gtsweep.report import plots
+    from gtsweep.report.samples import load_views
+    from gtsweep.report.tables import load_summaries
+
+    run = _fake_run(tmp_path / "run")
+    summaries, views = load_summaries(run), load_views(run)
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    plots.plot_success_heatmaps(summaries, tmp_path)
+    (figure,) = figures
+    ax = figure.axes[0]
+    texts = {t.get_text() for t in ax.texts}
+    # AKAZE-BRIEF 20/20 (Wilson [0.839, 1]), SIFT-SIFT 15/20 ([0.531, 0.888]); AKAZE-SIFT, SIFT-BRIEF not run
+    assert texts == {"1.00\n[0.84, 1.00]", "0.75\n[0.53, 0.89]", "NA"}
+    assert ax.get_title() == "Pose success, incremental pairs\n20 pairs per cell; [95 % interval]; NA: not applicable"
+    width, height = figure.get_size_inches()  # sized to its 2 x 2 cells
+    assert width == pytest.approx(2.6 + 2 * 1.25) and height == pytest.approx(1.9 + 2 * 0.62)
+    # rotation: 8 images, each at 0 and 90 deg: 16 views per cell, 8 behind each point (rows or, without, counts)
+    rotation = [s for s in summaries if s["methods"]["transform"] == "rotation"]
+    assert plots._views(rotation) == "16"
+    assert plots._per_point(rotation, "strength", views) == plots._per_point(rotation, "strength", None) == "8"
