@@ -89,3 +89,25 @@ def test_bash_completes_groups_lists_and_tuned_names():
     assert _bash_completions([sys.executable, "-m", "gtsweep"], ["detector=[s"]) == ["[sift", "[surf"]
     # a key is Hydra's: its config keys
     assert "n_absolute=" in " ".join(_bash_completions([gtsweep], ["dataset.n_"]))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+def test_other_python_commands_keep_their_completion_and_uninstall_restores_it():
+    gtsweep = shlex.quote(str(Path(sys.executable).parent / "gtsweep"))
+    script = "\n".join([
+        "_earlier() { COMPREPLY=(from-the-earlier-completion); }",
+        "complete -F _earlier python",
+        f'eval "$({gtsweep} -sc install=bash)"',
+        f'eval "$({gtsweep} -sc install=bash)"',  # twice (a profile read again): still the earlier one behind it
+        'COMP_LINE="python script.py"; COMP_POINT=${#COMP_LINE}; COMP_WORDS=(python script.py); COMP_CWORD=1',
+        "_gtsweep_completion python script.py python",
+        'echo "reply: ${COMPREPLY[*]}"',
+        f'eval "$({gtsweep} -sc uninstall=bash)"',
+        "complete -p python",
+        "complete -p gtsweep || echo 'gtsweep: none'",
+    ])
+    done = subprocess.run(["bash", "--norc", "--noprofile", "-c", script], capture_output=True, text=True,
+                          timeout=120)
+    assert done.stdout.splitlines() == ["reply: from-the-earlier-completion", "complete -F _earlier python",
+                                        "gtsweep: none"], done.stderr

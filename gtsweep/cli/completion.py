@@ -45,12 +45,16 @@ SCRIPT = r"""_gtsweep_completion()
         [[ "$choice" == "$word"* ]] && COMPREPLY+=("${choice:cut}")
     done
 }
-_GTSWEEP_PYTHON_COMPLETION=$(complete -p python 2>/dev/null | sed -n 's/.* -F \([^ ]*\) .*/\1/p')
+if [[ -z "${_GTSWEEP_PREVIOUS+set}" ]]; then  # installed twice: keep what was there the first time
+    _GTSWEEP_PREVIOUS=$(complete -p python python3 2>/dev/null)
+    _GTSWEEP_PYTHON_COMPLETION=$(sed -n 's/.* -F \([^ ]*\) .*/\1/p' <<< "$_GTSWEEP_PREVIOUS" | head -n 1)
+fi
 complete -o nospace -o default -F _gtsweep_completion gtsweep python python3
 """
 UNINSTALL = """complete -r gtsweep python python3 2>/dev/null
+eval "$_GTSWEEP_PREVIOUS"
 unset -f _gtsweep_completion
-unset _GTSWEEP_PYTHON_COMPLETION
+unset _GTSWEEP_PREVIOUS _GTSWEEP_PYTHON_COMPLETION
 """
 #: Hydra's prefixes of an override: append, delete, force-add.
 PREFIXES = ("++", "+", "~")
