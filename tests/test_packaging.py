@@ -93,6 +93,9 @@ def test_the_wheel_runs_a_preset_from_an_unrelated_directory(installed, tmp_path
     assert shown.returncode == 0 and "orb:" in shown.stdout and "sift:" not in shown.stdout.split("selector:")[0]
     helped = _run(installed, tmp_path, "-m", "gtsweep", "--help")
     assert helped.returncode == 0 and "sweeps: smoke," in helped.stdout
+    command = subprocess.run([str(installed / "bin" / "gtsweep"), "--help"], cwd=tmp_path, capture_output=True,
+                             text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(installed)})
+    assert command.returncode == 0 and command.stdout == helped.stdout  # the console script is python -m gtsweep
     datasets = _run(installed, tmp_path, "-m", "gtsweep.datasets", "--help")
     assert datasets.returncode == 0 and "dataset: csv, folder" in datasets.stdout
 

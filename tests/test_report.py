@@ -69,7 +69,7 @@ def test_selector_and_detector_tables(summaries):
 def test_pairings_and_reference_count_tables(summaries):
     tables = _tables(summaries)
     assert list(tables["table6_pairings"].cells.columns) == ["descriptor", "pose success (share)",
-                                                             "#correct matches (per pair)", "precision (share)"]
+                                                             "#correct matches (per view)", "precision (share)"]
     assert "pose success (share of pairs)" in tables["table4_incremental"].title
     table7 = tables["table7_reference_features"].cells
     assert list(table7.columns) == ["descriptor", "10", "100"]

@@ -4,8 +4,8 @@ Each table is built from whatever cells a sweep has (its result files, or its ML
 paper's layout: a cell reads ``ours [low, high] (paper)``, the ends of our 95 % interval (Wilson for a success
 rate, a seeded bootstrap over images otherwise; :mod:`gtsweep.report.samples`), which need not be symmetric about
 ours; ``NA`` marks a pairing that cannot be evaluated. Every column header (or the title, where the columns are
-methods) names its unit. Detection metrics are averaged with equal weight per transform type, as in the survey (section 5).
-Below each table: the best entry and those statistically tied with it (a paired test against the best at
+methods) names its unit. Detection metrics are averaged with equal weight per transform type, as in the survey
+(section 5). Below each table: the best entry and those statistically tied with it (a paired test against the best at
 ``--alpha``). Tables are written as Markdown, LaTeX and CSV (``<table>_values.csv``: the numbers, each interval's
 ends and the paper's number in columns), next to the plots of :mod:`gtsweep.report.plots`; ``cells`` lists every
 cell with each metric that :mod:`gtsweep.evaluation.schema` marks as reported. ``--by texture`` adds every table
@@ -282,7 +282,7 @@ def table_pairings(df: pd.DataFrame, views: Views | None = None, alpha: float = 
         for column, metric, said, digits in (("pose success", "pose_success", p.get("pose_success"), 2),
                                              ("#correct matches", "n_correct", p.get("correct_matches"), 0),
                                              ("precision", "precision", p.get("precision"), 2)):
-            column = with_unit(column, "per pair" if metric == "n_correct" else _unit(metric))
+            column = with_unit(column, "per view" if metric == "n_correct" else _unit(metric))
             record[column] = table.show(row, column, cells, metric, said, digits, views)
         out.append(record)
     table.cells = pd.DataFrame(out).set_index("detector")
