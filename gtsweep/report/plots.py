@@ -22,6 +22,7 @@ import pandas as pd  # noqa: E402
 from gtsweep.evaluation import schema  # noqa: E402
 from gtsweep.report.labels import STRENGTH_AXIS, label  # noqa: E402
 from gtsweep.report.samples import Views, estimate  # noqa: E402
+from gtsweep.report.tables import paper, paper_order  # noqa: E402
 
 
 def _series_name(methods: dict) -> str:
@@ -147,8 +148,8 @@ NA_COLOUR = "0.88"
 
 def plot_success_heatmaps(summaries: list[dict], out_dir: Path) -> list[Path]:
     """Detector x descriptor heat map of the pose headline (success) per pair kind (survey Tables 4 and 5): each
-    cell its value and 95 % interval, NA (grey) where the pairing cannot be evaluated; the figure sized to its
-    cells."""
+    cell its value and 95 % interval, NA (grey) where the pairing cannot be evaluated; rows and columns in the
+    survey table's order, the figure sized to its cells."""
     metric = schema.headline("pose")
     files = []
     for transform in ("incremental", "absolute"):
@@ -156,8 +157,9 @@ def plot_success_heatmaps(summaries: list[dict], out_dir: Path) -> list[Path]:
                  and schema.experiment_of(s) == "pose" and not s.get("by_reference_count")]
         if not cells:
             continue
-        detectors = sorted({s["methods"]["detector"] for s in cells})
-        descriptors = sorted({s["methods"]["descriptor"] for s in cells})
+        theirs = paper(f"table{4 if transform == 'incremental' else 5}_success_{transform}.csv")  # its order
+        detectors = paper_order({s["methods"]["detector"] for s in cells}, theirs["detector"])
+        descriptors = paper_order({s["methods"]["descriptor"] for s in cells}, theirs.columns[1:])
         values = np.full((3, len(detectors), len(descriptors)), np.nan)  # value, low, high
         for s in cells:
             if s["status"] == "ok":

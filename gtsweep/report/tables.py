@@ -163,8 +163,8 @@ def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str,
     if part.empty:
         return None
     theirs = paper(paper_file).set_index("detector")
-    detectors = _order(part["detector"].unique(), theirs.index)
-    descriptors = _order(part["descriptor"].unique(), theirs.columns)
+    detectors = paper_order(part["detector"].unique(), theirs.index)
+    descriptors = paper_order(part["descriptor"].unique(), theirs.columns)
     grid = pd.DataFrame(index=[shown_label(d) for d in detectors], columns=[shown_label(s) for s in descriptors])
     table = Table(name, f"{title} ({sample_note(part)})", grid)
     entries = {}
@@ -182,9 +182,9 @@ def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str,
     return table
 
 
-def _order(names, paper_order) -> list[str]:
-    """Methods in the paper's order, the ones it did not have after them."""
-    rank = {n: i for i, n in enumerate(paper_order)}
+def paper_order(names, order) -> list[str]:
+    """Methods in the paper's ``order`` (of its labels), the ones it did not have after them."""
+    rank = {n: i for i, n in enumerate(order)}
     return sorted(names, key=lambda n: (rank.get(paper_label(n), len(rank)), n))
 
 
@@ -214,7 +214,7 @@ def table_selectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
         return None
     theirs = paper("table2_selector_repeatability.csv").set_index("detector")
     columns = {"none": "rep_no_selection", "nms": "rep_nms", "anms": "rep_anms", "bucketing": "rep_bucketing"}
-    detectors = _order(detection.index.get_level_values("detector").unique(), theirs.index)
+    detectors = paper_order(detection.index.get_level_values("detector").unique(), theirs.index)
     out = pd.DataFrame(index=[shown_label(d) for d in detectors])
     table = Table("table2_selectors", f"Survey Table 2: repeatability of selector-detector pairings "
                                       f"({sample_note(df[df['descriptor'].isna()])})", out)
