@@ -188,7 +188,7 @@ def test_kill_9_at_a_random_moment_then_resume_leaves_a_true_record(tmp_path, at
     deadline = time.monotonic() + 120
     while not (out / "mlflow.json").exists() and sweep.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)  # the parent run exists: from here on a kill can leave a child half-logged
-    time.sleep(random.uniform(0, 6))
+    time.sleep(random.uniform(0, 2.5))  # cells are logged within seconds of the parent run on this grid
     sweep.send_signal(signal.SIGKILL)
     sweep.wait(timeout=60)
     resumed = run_cli(_sweep(tmp_path, out) + ["resume=true"], tmp_path)
