@@ -72,7 +72,9 @@ def test_user_configs_are_valid_choices(user_conf):
         cli.validate(["--config-dir", str(user_conf), "detector=[my_starr]"])
     with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):
         cli.validate(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
-    cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+    cli.validate(["detector=[sift,my_star]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+    with pytest.raises(BadInput, match="detector 'my_star' is not selected"):  # Hydra would refuse it later
+        cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
     with pytest.raises(UnknownMethod):  # without the user's directory it does not exist
         cli.validate(["detector=[my_star]"])
 
@@ -112,10 +114,10 @@ def test_descriptors_declared_in_yaml_need_a_known_norm():
 
 
 def test_only_the_overrides_are_touched():
-    args = ["--cfg", "job", "detector=all", "seed=1", "-m", "--config-dir", "x"]
-    expanded = cli.expand_all(args)
-    assert expanded[:2] == ["--cfg", "job"] and expanded[3:] == ["seed=1", "-m", "--config-dir", "x"]
-    assert expanded[2].startswith("detector=[agast,")
+    args = ["--cfg", "job", "detector=all", "-m", "seed=1", "--config-dir", "x"]
+    expanded = cli.expand_all(args)  # Hydra's flags first, in their order, then the overrides as one run
+    assert expanded[:5] == ["--cfg", "job", "-m", "--config-dir", "x"] and expanded[6:] == ["seed=1"]
+    assert expanded[5].startswith("detector=[agast,")
     assert cli.prepare(["-sc", "install=bash"]) == ["-sc", "install=bash"]  # shell completion: Hydra's own
     assert search.parse(["-sc", "install=bash"]).passthrough
     invocation = search.parse(["detector=[sift]", "--info", "searchpath"])
@@ -124,9 +126,9 @@ def test_only_the_overrides_are_touched():
 
 def test_a_users_searchpath_keeps_gtsweeps_entries(user_conf):
     (prepared,) = [a for a in cli.prepare([f"hydra.searchpath=[file://{user_conf}]"]) if a.startswith("hydra.")]
-    assert prepared == f"hydra.searchpath=[file://{user_conf},file://tuned,pkg://gtsweep.conf]"
+    assert prepared == f"hydra.searchpath=[file://{user_conf},tuned://tuned,pkg://gtsweep.conf]"
     assert search.search_path([f"hydra.searchpath=[file://{user_conf}]"]) == (
-        search.PRIMARY, f"file://{user_conf}", "file://tuned", "pkg://gtsweep.conf")
+        search.PRIMARY, f"file://{user_conf}", "tuned://tuned", "pkg://gtsweep.conf")
     assert "my_star" in cli.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
 
 

@@ -12,7 +12,7 @@ import sys
 from gtsweep.cli import lifecycle
 from gtsweep.cli.overrides import fail, place, prepare, resume_args
 from gtsweep.cli.search import parse
-from gtsweep.core.configs import ignore_missing_dir
+from gtsweep.core.searchpath import ignore_missing_dir, register_sources
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
 
@@ -33,6 +33,7 @@ def main(argv: list[str] | None = None) -> None:
             fail(e)
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
     lifecycle.register_resolvers()
+    register_sources()
     sys.argv = [sys.argv[0], *args]
     with lifecycle.interruptible():  # Ctrl-C while Hydra composes or imports: one line too
         try:

@@ -26,7 +26,7 @@ from gtsweep.cli.lifecycle import (
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
-from gtsweep.core.configs import configs_of_sources, register_help_resolver
+from gtsweep.core.searchpath import configs_of_sources, register_help_resolver, register_sources
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted
 from gtsweep.evaluation import schema
@@ -41,6 +41,7 @@ from gtsweep.report.tables import Table, frame, sample_note
 
 log = logging.getLogger(__name__)
 register_resolvers()  # also in processes that only import this module (Hydra's joblib launcher workers)
+register_sources()
 
 
 def hydra_main() -> None:

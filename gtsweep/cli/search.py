@@ -17,36 +17,57 @@ from importlib import resources
 
 import yaml
 
-from gtsweep.core.configs import Configs
+from gtsweep.core.searchpath import METHOD_GROUPS, Configs
 from gtsweep.core.errors import BadInput
 
 PRIMARY_MODULE = "gtsweep.cli.primary"
 PRIMARY = f"pkg://{PRIMARY_MODULE}"
 PRIMARY_NAME = "gtsweep"
 #: The config groups that hold a list of methods and span the grid.
-GRID_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+GRID_GROUPS = METHOD_GROUPS
 
 
 @dataclass(frozen=True)
 class Invocation:
-    """A command line as Hydra's own parser reads it: the overrides (one run of ``argv``, from ``start``) and
-    Hydra's flags, wherever they stand."""
+    """A command line as Hydra's own parser reads it: Hydra's flags (wherever they stood, in their order) and the
+    overrides (every positional argument, in its order)."""
 
-    argv: tuple[str, ...]
+    flags: tuple[str, ...]
     overrides: tuple[str, ...]
-    start: int
     config_dir: str | None
     multirun: bool
     passthrough: bool  # shell completion (``-sc install=bash``), or a command line Hydra will refuse: left as is
 
+    @property
+    def argv(self) -> list[str]:
+        """The command line as Hydra's parser takes it: the flags, then the overrides as one run (a flag standing
+        between overrides would otherwise end Hydra's positional arguments)."""
+        return [*self.flags, *self.overrides]
+
     def with_overrides(self, overrides: list[str]) -> list[str]:
-        """``argv`` with its overrides replaced by ``overrides`` (in their place: Hydra takes them as one run)."""
-        end = self.start + len(self.overrides)
-        return [*self.argv[:self.start], *overrides, *self.argv[end:]]
+        """The command line with its overrides replaced by ``overrides``."""
+        return [*self.flags, *overrides]
 
 
 def _raise(message: str):
     raise BadInput(message)
+
+
+def _without(argv: tuple[str, ...], overrides: tuple[str, ...]) -> tuple[str, ...]:
+    """``argv`` without the tokens that are ``overrides`` (matched in order; a flag's value is never one)."""
+    flags, remaining = [], list(overrides)
+    for i, token in enumerate(argv):
+        takes_value = i > 0 and argv[i - 1] in VALUE_FLAGS
+        if remaining and token == remaining[0] and not takes_value:
+            remaining.pop(0)
+        else:
+            flags.append(token)
+    return tuple(flags)
+
+
+#: Hydra's flags that take the next token as their value.
+VALUE_FLAGS = ("-c", "--cfg", "-p", "--package", "-cp", "--config-path", "-cn", "--config-name", "-cd",
+               "--config-dir", "-sc", "--shell-completion", "--experimental-rerun")
 
 
 @lru_cache(maxsize=64)
@@ -56,12 +77,11 @@ def _parse(argv: tuple[str, ...]) -> Invocation:
     parser = get_args_parser()
     parser.error = _raise  # a command line Hydra refuses is Hydra's to report
     try:
-        args = parser.parse_args(list(argv))
-    except (BadInput, argparse.ArgumentError):
-        return Invocation(argv, (), 0, None, "-m" in argv or "--multirun" in argv, True)
+        args = parser.parse_intermixed_args(list(argv))
+    except (BadInput, argparse.ArgumentError, TypeError):
+        return Invocation(argv, (), None, "-m" in argv or "--multirun" in argv, True)
     overrides = tuple(args.overrides)
-    start = next((i for i in range(len(argv)) if argv[i:i + len(overrides)] == overrides), 0)
-    return Invocation(argv, overrides, start if overrides else 0, args.config_dir, bool(args.multirun),
+    return Invocation(_without(argv, overrides), overrides, args.config_dir, bool(args.multirun),
                       bool(args.shell_completion))
 
 
@@ -117,6 +137,27 @@ def configs(argv=()) -> Configs:
 
 
 
+def check_yaml(argv) -> None:
+    """A one-line BadInput naming ``file:line`` for a config file of the user's directories on the search path
+    (``--config-dir``, ``hydra.searchpath``, ``./tuned``) that is not valid YAML, before Hydra reads it."""
+    for entry in search_path(argv):
+        scheme, _, root = entry.partition("://")
+        if scheme not in ("file", "tuned") or not os.path.isdir(root):
+            continue
+        for folder, _, names in os.walk(root):
+            for name in sorted(n for n in names if n.endswith(".yaml")):
+                path = os.path.join(folder, name)
+                try:
+                    with open(path, encoding="utf-8") as f:
+                        yaml.safe_load(f)
+                except yaml.MarkedYAMLError as e:
+                    mark = e.problem_mark or e.context_mark
+                    raise BadInput(f"malformed YAML in {path}:{mark.line + 1 if mark else '?'}: "
+                                   f"{e.problem or e.context}") from None
+                except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+                    raise BadInput(f"cannot read the config {path}: {e}") from None
+
+
 def loaded_files(found: Configs, overrides) -> list[tuple[str, str]]:
     """``(package, config path)`` of every config file that composing the primary with ``overrides`` loads (Hydra's
     defaults list; ``runtime.choices`` leaves out the groups that take a list)."""
@@ -124,8 +165,14 @@ def loaded_files(found: Configs, overrides) -> list[tuple[str, str]]:
     from hydra._internal.defaults_list import create_defaults_list
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
+    from hydra._internal.config_repository import ConfigRepository
+    from hydra._internal.config_search_path_impl import ConfigSearchPathImpl
+
+    path = ConfigSearchPathImpl()
+    for entry in found.entries:
+        path.append("gtsweep", entry)
     parsed = OverridesParser.create().parse_overrides(list(overrides))
-    defaults = create_defaults_list(CachingConfigRepository(found.repository), PRIMARY_NAME, parsed,
+    defaults = create_defaults_list(CachingConfigRepository(ConfigRepository(path)), PRIMARY_NAME, parsed,
                                     prepend_hydra=False, skip_missing=True)
     return [(d.package, d.config_path) for d in defaults.defaults if d.config_path and not d.is_self]
 
