@@ -36,7 +36,7 @@ def test_a_hydra_flag_may_stand_between_overrides(capsys, monkeypatch, tmp_path)
     assert "seed: 3" in printed and "orb:" in printed and "sift:" not in printed.split("selector:")[0]
     invocation = search.parse(["detector=[orb]", "--cfg", "job", "descriptor=[orb]", "-m", "seed=0,1"])
     assert invocation.overrides == ("detector=[orb]", "descriptor=[orb]", "seed=0,1") and invocation.multirun
-    assert invocation.argv == ["--cfg", "job", "-m", "detector=[orb]", "descriptor=[orb]", "seed=0,1"]
+    assert invocation.argv == ["detector=[orb]", "descriptor=[orb]", "seed=0,1", "--cfg", "job", "-m"]
 
 
 def test_malformed_yaml_in_a_config_dir_is_named_by_file_and_line(tmp_path, capsys):

@@ -65,7 +65,7 @@ def test_user_configs_are_valid_choices(user_conf):
     (expanded,) = [a for a in cli.expand_all(args) if a.startswith("detector=")]
     assert "my_star" in expanded and "sift" in expanded
     # Hydra's sweeper globs over its main directory only: gtsweep expands a glob over the search path itself
-    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[-1] == "detector=my_star"
+    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[0] == "detector=my_star"
     with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
         cli.expand_all(["-m", "detector=glob(zz*)"])
     with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
@@ -115,9 +115,9 @@ def test_descriptors_declared_in_yaml_need_a_known_norm():
 
 def test_only_the_overrides_are_touched():
     args = ["--cfg", "job", "detector=all", "-m", "seed=1", "--config-dir", "x"]
-    expanded = cli.expand_all(args)  # Hydra's flags first, in their order, then the overrides as one run
-    assert expanded[:5] == ["--cfg", "job", "-m", "--config-dir", "x"] and expanded[6:] == ["seed=1"]
-    assert expanded[5].startswith("detector=[agast,")
+    expanded = cli.expand_all(args)  # the overrides as one run, then Hydra's flags in their order
+    assert expanded[1:] == ["seed=1", "--cfg", "job", "-m", "--config-dir", "x"]
+    assert expanded[0].startswith("detector=[agast,")
     assert cli.prepare(["-sc", "install=bash"]) == ["-sc", "install=bash"]  # shell completion: Hydra's own
     assert search.parse(["-sc", "install=bash"]).passthrough
     invocation = search.parse(["detector=[sift]", "--info", "searchpath"])

@@ -40,13 +40,14 @@ class Invocation:
 
     @property
     def argv(self) -> list[str]:
-        """The command line as Hydra's parser takes it: the flags, then the overrides as one run (a flag standing
-        between overrides would otherwise end Hydra's positional arguments)."""
-        return [*self.flags, *self.overrides]
+        """The command line as Hydra's parser takes it: the overrides as one run, then the flags (a flag standing
+        between overrides would end Hydra's positional arguments; an override after ``--info`` would be taken for
+        its value)."""
+        return [*self.overrides, *self.flags]
 
     def with_overrides(self, overrides: list[str]) -> list[str]:
         """The command line with its overrides replaced by ``overrides``."""
-        return [*self.flags, *overrides]
+        return [*overrides, *self.flags]
 
 
 def _raise(message: str):

@@ -25,7 +25,7 @@ from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.orchestration import loctasks
 from gtsweep.orchestration.cache import cache_state
 from gtsweep.orchestration.executor import backend, check_address, make_executor
-from gtsweep.orchestration.grid import _pairings, _surveys, declared_methods, resolve_group
+from gtsweep.orchestration.grid import declared_methods, pairings_of, resolve_group, selectors_of, with_survey_method
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore
 from gtsweep.orchestration.runner import RunStats
@@ -105,11 +105,12 @@ def build_localization_grid(cfg: Mapping) -> LocGrid:
     check_data_options(plain(cfg.get("experiment")) or {})
     grid = LocGrid(plain(cfg.get("experiment")) or {}, resolve_group(cfg, "detector"),
                    resolve_group(cfg, "selector"), resolve_group(cfg, "descriptor"),
-                   resolve_group(_surveys(cfg, "matcher"), "matcher"),
-                   resolve_group(_surveys(cfg, "estimator"), "estimator"))
-    for detector, descriptor in _pairings(cfg, grid):
+                   resolve_group(with_survey_method(cfg, "matcher"), "matcher"),
+                   resolve_group(with_survey_method(cfg, "estimator"), "estimator"))
+    selected = selectors_of(cfg, grid)
+    for detector, descriptor in pairings_of(cfg, grid):
         norm = DESCRIPTORS.get(descriptor).norm
-        for selector in grid.selectors:
+        for selector in selected[detector]:
             for matcher, matcher_cfg in grid.matchers.items():
                 reason = applicability(detector, descriptor) or matcher_applicability(
                     MATCHERS.get(matcher).build(matcher_cfg["params"]), norm)

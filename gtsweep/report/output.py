@@ -9,17 +9,19 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from pathlib import Path
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.orchestration.results import by_variant
+from gtsweep.stages.select import SELECTORS
 from gtsweep.report.breakdown import (
     strength_table,
     texture_summaries,
     texture_views,
     textures,
 )
-from gtsweep.report.labels import variant_slug
+from gtsweep.report.labels import shown_label, variant_slug
 from gtsweep.report.samples import Views, load_views
 from gtsweep.report.scale import Scale, annotate, load_scale, scale_from_config
 from gtsweep.report.tables import (
@@ -33,13 +35,41 @@ from gtsweep.report.tables import (
 )
 
 
+#: The survey tables whose entries are pairings (a detector's selector is not a column of them).
+PAIRING_TABLES = ("table4", "table5", "table6", "table7")
+
+
+def selector_note(summaries: list[dict]) -> str:
+    """``"; selector NMS, MSER: ANMS"`` when the pairing cells use one selector per detector and not the same one
+    for all (``selector_for``), else "": the tables then say which selector each detector's entries used."""
+    used: dict[str, set] = {}
+    for s in summaries:
+        if s.get("methods", {}).get("descriptor"):
+            used.setdefault(s["methods"]["detector"], set()).add(s["methods"]["selector"])
+    if not used or any(len(selectors) != 1 for selectors in used.values()):
+        return ""
+    chosen = {detector: next(iter(selectors)) for detector, selectors in used.items()}
+    counts = Counter(chosen.values())
+    if len(counts) < 2:
+        return ""
+    common = counts.most_common(1)[0][0]
+    others = ", ".join(f"{shown_label(d)}: {_selector_label(chosen[d])}" for d in sorted(chosen)
+                       if chosen[d] != common)
+    return f"; selector {_selector_label(common)}, {others}"
+
+
+def _selector_label(name: str) -> str:
+    spec = SELECTORS.get(name, None)
+    return spec.label if spec else name
+
+
 def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots: bool, alpha: float,
                scale: Scale, note: str = "") -> tuple[list[Table], list[Path]]:
     tables = build_tables(summaries, views, alpha)
     annotate(tables, scale)
-    if note:
-        for table in tables:
-            table.title += note
+    pinned = selector_note(summaries)
+    for table in tables:
+        table.title += (pinned if table.name.startswith(PAIRING_TABLES) else "") + note
     extra = [t for t in (table_cells(summaries), strength_table(summaries, views, note=note)) if t is not None]
     files = write_tables(tables + extra, out_dir)
     if plots:
