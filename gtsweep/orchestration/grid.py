@@ -27,7 +27,8 @@ from gtsweep.stages.pairing import applicability
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import SELECTORS
 
-EXPERIMENTS = ("detection", "matching", "pose")
+#: The experiments on pairs of images (the survey's): each a grid of this module.
+PAIR_EXPERIMENTS = ("detection", "matching", "pose")
 TRANSFORM_KINDS = ("synthetic", "pairs")
 PAIR_TRANSFORMS = ("incremental", "absolute")
 #: The registry behind each grid group (the real-pair transforms have no parameters, so no entry).
@@ -203,8 +204,8 @@ def build_grid(cfg: Mapping) -> Grid:
     """The cells of the sweep described by ``cfg`` (the composed Hydra config); every setting checked first."""
     check_settings(cfg)
     experiment = plain(cfg.get("experiment")) or {}
-    if experiment.get("name") not in EXPERIMENTS:
-        raise BadInput(f"experiment must be one of {', '.join(EXPERIMENTS)}, got {experiment.get('name')!r}")
+    if experiment.get("name") not in PAIR_EXPERIMENTS:
+        raise BadInput(f"experiment must be one of {', '.join(PAIR_EXPERIMENTS)}, got {experiment.get('name')!r}")
     name = experiment["name"]
     if name != "detection":
         _check_moved(experiment)

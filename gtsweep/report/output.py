@@ -1,4 +1,5 @@
-"""Write a sweep's report, and the report command: ``python -m gtsweep.report <run dir>`` (or ``--mlflow``).
+"""Write the report of a pair experiments' sweep (the report command, ``python -m gtsweep.report``, is
+:mod:`gtsweep.experiments.report_command`: it picks each kind's report).
 
 The report (:mod:`gtsweep.report.tables`) holds every survey table the cells can fill, each entry ``ours
 ±half-width (paper)`` with the entries tied with the best below it, the per-cell table, the synthetic results per
@@ -7,8 +8,6 @@ under ``by_texture/<texture>/`` (:mod:`gtsweep.report.breakdown`).
 """
 from __future__ import annotations
 
-import argparse
-import sys
 from collections import Counter
 from pathlib import Path
 
@@ -100,50 +99,3 @@ def write_report(summaries: list[dict], out_dir: str | Path, plots: bool = True,
             files += _write_set(texture_summaries(summaries, views, texture), texture_views(views, texture),
                                 out_dir / "by_texture" / texture, plots, alpha, scale, f", texture {texture}")[1]
     return tables, files
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gtsweep.report", description=__doc__.splitlines()[0])
-    parser.add_argument("source", help="a sweep's output directory (it holds cells/ and results.csv), or with "
-                                       "--mlflow the id of a sweep's parent run (a sweep or experiment=localization)")
-    parser.add_argument("--mlflow", action="store_true", help="read the cells (and their per-view rows, the child "
-                                                              "runs' artifacts) from MLflow child runs of SOURCE")
-    parser.add_argument("--tracking-uri", help="MLflow store (default: $MLFLOW_TRACKING_URI or ./mlflow.db)")
-    parser.add_argument("--out", help="where to write tables and plots (default: <source>/report, or ./report)")
-    parser.add_argument("--no-plots", action="store_true", help="tables only")
-    parser.add_argument("--by", choices=["texture"], help="also every table per texture (report.by)")
-    parser.add_argument("--alpha", type=float, default=ALPHA,
-                        help=f"significance level of the paired tests for the ties with the best (default {ALPHA})")
-    args = parser.parse_args(argv)
-    if not 0 < args.alpha < 1:
-        parser.error(f"--alpha must be in (0, 1), not {args.alpha}")
-    out = Path(args.out or ("report" if args.mlflow else Path(args.source) / "report"))
-    try:
-        if args.mlflow:
-            from gtsweep.tracking.sweep import (
-                config_from_mlflow,
-                summaries_from_mlflow,
-                views_from_mlflow,
-            )
-
-            summaries = summaries_from_mlflow(args.source, args.tracking_uri)
-            views = views_from_mlflow(args.source, args.tracking_uri)
-            scale = scale_from_config(config_from_mlflow(args.source, args.tracking_uri))
-        else:
-            summaries, views = load_summaries(args.source), load_views(args.source)
-            scale = load_scale(args.source)
-        localization = bool(summaries) and all(s.get("experiment") == "localization" for s in summaries)
-        if localization:  # e.g. --mlflow of an experiment=localization run: its own report, no survey tables
-            from gtsweep.report.localization import write_localization_report
-
-            tables, files = write_localization_report(summaries, out, not args.no_plots)
-        else:
-            tables, files = write_report(summaries, out, not args.no_plots, views, args.by, args.alpha, scale)
-    except GtsweepError as e:
-        print(f"gtsweep.report: error: {e}", file=sys.stderr)
-        return 2
-    for table in tables:
-        print(table.markdown(), end="\n\n")
-    print(scale.line(detection=not localization))
-    print(f"{len(files)} files in {out}")
-    return 0
