@@ -1,5 +1,5 @@
 """``experiment=localization``: build a map per floor and localize queries against it, for every cell of
-detector x selector x descriptor x matcher x estimator (issue 19; Micro-GPS, Zhang et al. ICRA 2019).
+detector x selector x descriptor x matcher x estimator (as Micro-GPS localizes, Zhang et al. ICRA 2019).
 
 The task graph: mapping images are detected and described in shards (``runner.shard_size`` images per task,
 through the keypoint cache), then assembled into one map per (detector, selector, descriptor, floor), which is cached
