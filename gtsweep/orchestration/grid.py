@@ -23,7 +23,7 @@ from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pairing import applicability
+from gtsweep.stages.applicability import applicability
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import SELECTORS
 

@@ -30,7 +30,7 @@ from gtsweep.orchestration.skeleton import CellWork, SweepOutcome, run_sweep
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pairing import applicability
+from gtsweep.stages.applicability import applicability
 
 log = logging.getLogger(__name__)
 SETTINGS = {

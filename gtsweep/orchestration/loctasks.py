@@ -29,7 +29,7 @@ from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns
 from gtsweep.stages.match import MATCHERS
-from gtsweep.stages.pairing import describe_timed
+from gtsweep.stages.applicability import describe_timed
 from gtsweep.stages.pose import ESTIMATORS
 
 MAP_FIELDS = ("xy", "angle", "descriptors", "image", "build_seconds")
