@@ -380,7 +380,7 @@ def compose_config(overrides: list[str], config_dir: str | None = None):
     register_help_resolver()
     with initialize_config_module(config_module=PRIMARY_MODULE, version_base=None):
         cfg = compose(config_name=PRIMARY_NAME, overrides=overrides)
-    keyed_methods(cfg, configs(args), overrides)
+        keyed_methods(cfg, configs(args), overrides)
     return cfg
 
 

@@ -159,22 +159,15 @@ def check_yaml(argv) -> None:
                     raise BadInput(f"cannot read the config {path}: {e}") from None
 
 
-def loaded_files(found: Configs, overrides) -> list[tuple[str, str]]:
+def loaded_files(overrides) -> list[tuple[str, str]]:
     """``(package, config path)`` of every config file that composing the primary with ``overrides`` loads (Hydra's
-    defaults list; ``runtime.choices`` leaves out the groups that take a list)."""
-    from hydra._internal.config_repository import CachingConfigRepository
-    from hydra._internal.defaults_list import create_defaults_list
-    from hydra.core.override_parser.overrides_parser import OverridesParser
+    defaults list, from the running Hydra's config loader; ``runtime.choices`` leaves out the groups that take a
+    list)."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.types import RunMode
 
-    from hydra._internal.config_repository import ConfigRepository
-    from hydra._internal.config_search_path_impl import ConfigSearchPathImpl
-
-    path = ConfigSearchPathImpl()
-    for entry in found.entries:
-        path.append("gtsweep", entry)
-    parsed = OverridesParser.create().parse_overrides(list(overrides))
-    defaults = create_defaults_list(CachingConfigRepository(ConfigRepository(path)), PRIMARY_NAME, parsed,
-                                    prepend_hydra=False, skip_missing=True)
+    loader = GlobalHydra.instance().config_loader()
+    defaults = loader.compute_defaults_list(PRIMARY_NAME, list(overrides), RunMode.RUN)
     return [(d.package, d.config_path) for d in defaults.defaults if d.config_path and not d.is_self]
 
 
@@ -188,7 +181,7 @@ def keyed_methods(cfg, found: Configs, overrides) -> None:
     """
     from omegaconf import OmegaConf, open_dict
 
-    for package, path in loaded_files(found, overrides):
+    for package, path in loaded_files(overrides):
         group, _, option = path.partition("/")
         if package != group or group not in GRID_GROUPS or group not in cfg:
             continue
