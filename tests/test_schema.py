@@ -96,7 +96,7 @@ def test_schema_declares_every_row_column():
     assert set(schema.STEP_KEYS) <= set(schema.META)
     assert {"n_test_valid", "n_ref_valid", "n_repeated", "n_kp_ref", "n_described_ref", "n_described_test",
             "n_inliers", "t_detect", "t_describe", "t_match", "t_pose", "view", "texture"} <= declared
-    assert {e: schema.headline(e) for e in schema.EXPERIMENTS} == {
+    assert {e: schema.headline(e) for e in schema.EXPERIMENT_ROWS} == {
         "detection": "repeatability", "matching": "precision", "pose": "pose_success",
         "localization": "localization_success"}
     with pytest.raises(GtsweepError, match="already declared"):

@@ -28,7 +28,7 @@ import pandas as pd
 from gtsweep.core.errors import GtsweepError
 
 #: The experiments whose rows the schema describes, each extending the one before it.
-EXPERIMENTS = ("detection", "matching", "pose", "localization")
+EXPERIMENT_ROWS = ("detection", "matching", "pose", "localization")
 #: Columns that identify a view (not aggregated); the cell CSV keeps its transform too, so each row names its
 #: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a
 #: strength, pairs NaN; reference_count is the number of reference keypoints kept (survey Table 7), NaN without
@@ -76,7 +76,7 @@ class Metric:
     def experiments(self) -> tuple[str, ...]:
         if self.since in STANDALONE:
             return (self.since,)
-        return EXPERIMENTS[EXPERIMENTS.index(self.since):]
+        return EXPERIMENT_ROWS[EXPERIMENT_ROWS.index(self.since):]
 
     @property
     def bounded(self) -> bool:
@@ -88,7 +88,7 @@ def _declare(*metrics: Metric) -> dict[str, Metric]:
     return {m.name: m for m in metrics}
 
 
-_DET, _MATCH, _POSE, _LOC = EXPERIMENTS
+_DET, _MATCH, _POSE, _LOC = EXPERIMENT_ROWS
 METRICS: dict[str, Metric] = _declare(
     Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)",
            interval=True),
@@ -158,8 +158,8 @@ METRICS: dict[str, Metric] = _declare(
 
 def _check(metric: Metric) -> Metric:
     problems = []
-    if metric.since not in EXPERIMENTS and metric.since not in STANDALONE:
-        problems.append(f"experiment {metric.since!r} is not one of {', '.join([*EXPERIMENTS, *STANDALONE])}")
+    if metric.since not in EXPERIMENT_ROWS and metric.since not in STANDALONE:
+        problems.append(f"experiment {metric.since!r} is not one of {', '.join([*EXPERIMENT_ROWS, *STANDALONE])}")
     if metric.aggregation not in AGGREGATIONS:
         problems.append(f"aggregation {metric.aggregation!r} is not one of {', '.join(AGGREGATIONS)}")
     if (metric.aggregation == "ratio") != (metric.of is not None):
@@ -191,7 +191,7 @@ def unregister(name: str) -> None:
 def add_experiment(name: str, headline_metric: str, *metrics: Metric, curves: tuple[str, ...] = ()) -> None:
     """Declare a new experiment kind's rows: its own ``metrics`` (``since=name``), the headline the terminal
     summary shows and the metrics drawn against strength. A plug-in's experiment kind calls this once."""
-    if name in EXPERIMENTS or name in STANDALONE:
+    if name in EXPERIMENT_ROWS or name in STANDALONE:
         raise GtsweepError(f"experiment '{name}' is already declared in {SCHEMA_FILE}")
     STANDALONE.add(name)
     for metric in metrics:
@@ -222,7 +222,7 @@ def headline(experiment: str) -> str:
 
 def experiment_of(summary: Mapping) -> str:
     """A cell summary's experiment; summaries written before it was recorded: guessed from methods and metrics."""
-    if summary.get("experiment") in EXPERIMENTS or summary.get("experiment") in STANDALONE:
+    if summary.get("experiment") in EXPERIMENT_ROWS or summary.get("experiment") in STANDALONE:
         return summary["experiment"]
     if not (summary.get("methods") or {}).get("descriptor"):
         return "detection"
