@@ -64,3 +64,16 @@ def test_the_working_directorys_tuned_serves_tuned_method_files_only(tmp_path, m
     assert "planted" not in cfg.detector and "sift" in cfg.detector
     assert cli.compose_config(["detector=[tuned/sift]"]).detector.sift.params.contrastThreshold == 0.031
     assert not (tmp_path / "PWNED").exists()
+
+
+def test_gtsweeps_reading_of_hydras_flags_matches_hydras_parser():
+    """gtsweep parses Hydra's command line without Hydra's private parser; this holds the two side by side."""
+    from hydra._internal.utils import get_args_parser  # the test may look inside Hydra; the package does not
+
+    def described(parser):
+        return {tuple(sorted(a.option_strings)): (a.nargs, a.const, tuple(a.choices or ()), a.default is False)
+                for a in parser._actions if a.option_strings}
+
+    theirs, ours = described(get_args_parser()), described(search.hydra_flags())
+    theirs[("--version",)] = ours[("--version",)]  # Hydra prints its version; gtsweep only needs to skip the flag
+    assert ours == theirs
