@@ -12,9 +12,9 @@ import sys
 from gtsweep.cli import lifecycle
 from gtsweep.cli.overrides import fail, place, prepare, resume_args
 from gtsweep.cli.search import parse
-from gtsweep.core.searchpath import ignore_missing_dir, register_sources
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
+from gtsweep.core.searchpath import ignore_missing_dir, register_sources
 
 #: Flags that only print (help, config): no output directory needed.
 PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")

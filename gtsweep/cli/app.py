@@ -26,9 +26,9 @@ from gtsweep.cli.lifecycle import (
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
-from gtsweep.core.searchpath import configs_of_sources, register_help_resolver, register_sources
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted
+from gtsweep.core.searchpath import configs_of_sources, register_help_resolver, register_sources
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress

@@ -17,8 +17,8 @@ from importlib import resources
 
 import yaml
 
-from gtsweep.core.searchpath import METHOD_GROUPS, Configs
 from gtsweep.core.errors import BadInput
+from gtsweep.core.searchpath import METHOD_GROUPS, Configs
 
 PRIMARY_MODULE = "gtsweep.cli.primary"
 PRIMARY = f"pkg://{PRIMARY_MODULE}"

@@ -23,8 +23,8 @@ from gtsweep.optimize.tuned_files import (
     tuned_header,
     write_tuned,
 )
-from gtsweep.optimize.study_settings import job_transforms, read_settings
 from gtsweep.optimize.optuna_study import complete_trials, open_study, optimise
+from gtsweep.optimize.study_settings import job_transforms, read_settings
 from gtsweep.optimize.targets import build_targets, study_name
 from gtsweep.orchestration.cache import cache_directory
 from gtsweep.orchestration.executor import backend, check_address, make_executor

@@ -19,11 +19,11 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.settings import check_settings
+from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.applicability import applicability
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import SELECTORS
 

@@ -18,8 +18,8 @@ from typing import Mapping
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import Choice, Range, check_all
-from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.core import read_gray
+from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.orchestration import loctasks
 from gtsweep.orchestration.executor import make_executor
@@ -27,10 +27,10 @@ from gtsweep.orchestration.grid import declared_methods, pairings_of, resolve_gr
 from gtsweep.orchestration.runner import RunStats
 from gtsweep.orchestration.settings import check_settings
 from gtsweep.orchestration.skeleton import CellWork, SweepOutcome, run_sweep
+from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.applicability import applicability
 
 log = logging.getLogger(__name__)
 SETTINGS = {
