@@ -51,7 +51,7 @@ tune: $(STAMP)
 # The long run: every survey table preset on the survey-size data set (dataset=survey, reduced counts: about an
 # hour), docs/REPRODUCTION.md. --size presets / full: the presets' counts / the survey's protocol (hours).
 reproduce: $(STAMP)
-	$(BIN)/python -m gtsweep.report.reproduce --size hour
+	$(BIN)/python -m gtsweep.report.reproduce --size decide
 
 clean:
 	rm -rf .gtsweep_cache outputs multirun

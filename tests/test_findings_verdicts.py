@@ -58,7 +58,7 @@ def table3_low_ambiguity(case):
     return _detection(levels, "ambiguity")
 
 
-def _pairs(success: dict[str, int], transform: str, clusters: int = 60):
+def _pairs(success: dict[str, int], transform: str, clusters: int = 120):
     """Pose cells: pairing -> successes in every 10 pairs (one view per pair)."""
     fakes = Fakes()
     for pairing, k in success.items():

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -93,6 +93,9 @@ class Comparison:
     high: float = math.nan
     n: int = 0  # items compared
     se: float = math.nan  # standard error of the difference (a t-based comparison)
+    centre: float = math.nan  # the centre its test and interval use, where an adjustment moves it
+    p_greater: float = math.nan  # exact one-sided p of "A - B > 0" (and "< 0"), where an exact test exists
+    p_less: float = math.nan
     df: int = 0  # its degrees of freedom
 
     def describe(self) -> str:
@@ -238,7 +241,8 @@ def clustered_interval(sums, counts, confidence: float = CONFIDENCE, rate: bool 
       t(n-1) in place of z (Korn & Graubard 1998's design-effect adjustment). n_eff lies between the number of
       clusters (every view of a cluster alike: design effect at its bound) and the binomial count (views
       independent); where the SE cannot estimate it (every cluster alike, e.g. a rate of exactly 0 or 1) it takes
-      the cautious bound, the number of clusters. One formula for every rate, 0 and 1 included.
+      the cautious bound, the number of clusters. One formula for every rate, 0 and 1 included; with one view
+      per cluster (independent trials: nothing estimated) it is Wilson's interval itself, with z.
 
     Coverage checked by simulation at 6, 12 and 25 clusters (tests/test_coverage.py). Fewer than 2 clusters:
     (nan, nan)."""
@@ -250,6 +254,8 @@ def clustered_interval(sums, counts, confidence: float = CONFIDENCE, rate: bool 
         return estimate.value - quantile * estimate.se, estimate.value + quantile * estimate.se
     p = min(max(estimate.value, 0.0), 1.0)
     trials = _binomial_trials(np.asarray(counts, dtype=np.float64)[np.asarray(counts).sum(axis=1) > 0])
+    if trials <= estimate.n:  # one view per cluster: independent trials, nothing estimated: Wilson's own z
+        return wilson_score(p, estimate.n, float(stats.norm.ppf(0.5 + confidence / 2)))
     n_eff = p * (1 - p) / estimate.se ** 2 if estimate.se > 0 and 0 < p < 1 else estimate.n
     return wilson_score(p, min(max(n_eff, estimate.n), max(trials, estimate.n)), quantile)
 
@@ -261,11 +267,16 @@ def wilson_score(p: float, n: float, z: float) -> tuple[float, float]:
     return max(centre - half, 0.0), min(centre + half, 1.0)
 
 
-def clustered_difference(a_sums, a_counts, b_sums, b_counts, confidence: float = CONFIDENCE) -> Comparison:
+def clustered_difference(a_sums, a_counts, b_sums, b_counts, confidence: float = CONFIDENCE,
+                         rate: bool = False) -> Comparison:
     """Paired comparison of two methods' :func:`clustered_mean` on the SAME clusters (rows and strata aligned):
     the difference A - B, its cluster-robust SE from the clusters' paired influence differences, a two-sided
-    t test (n - 1 degrees of freedom) and its t interval at ``confidence``. The paired t over clusters is the
-    method whose coverage tests/test_coverage.py checks at 6, 12 and 25 clusters."""
+    t test (n - 1 degrees of freedom) and its t interval at ``confidence``. For a ``rate``, half a cluster won by
+    A alone and half a cluster won by B alone are added first (the cluster form of Agresti & Min 2005's
+    adjustment): without it a paired t on 0/1 outcomes with few discordant pairs is far too sure of itself. For
+    0/1 outcomes with one view per pair, the tests against 0 are the exact McNemar test (``p_value``, and
+    ``p_greater`` / ``p_less`` one-sided); the margins use the t. The
+    coverage of this method is checked by simulation at 6, 12 and 25 clusters (tests/test_coverage.py)."""
     a_s, a_c, b_s, b_c = (np.asarray(v, dtype=np.float64) for v in (a_sums, a_counts, b_sums, b_counts))
     seen = (a_c.sum(axis=1) > 0) & (b_c.sum(axis=1) > 0)
     a_s, a_c, b_s, b_c = a_s[seen], a_c[seen], b_s[seen], b_c[seen]
@@ -273,9 +284,24 @@ def clustered_difference(a_sums, a_counts, b_sums, b_counts, confidence: float =
     difference = clustered_mean(a_s, a_c) - clustered_mean(b_s, b_c) if n else math.nan
     if n < 2 or not math.isfinite(difference):
         return Comparison(PAIRED_T, difference, math.nan, n=n)
+    if rate:  # Agresti & Min (2005)-type: half a cluster won by A alone and half won by B alone
+        half = (a_c.mean(axis=0) + b_c.mean(axis=0)) / 4
+        a_s, b_s = np.vstack([a_s, half, 0 * half]), np.vstack([b_s, 0 * half, half])
+        a_c, b_c = np.vstack([a_c, half, half]), np.vstack([b_c, half, half])
+    centre = clustered_mean(a_s, a_c) - clustered_mean(b_s, b_c)
     z = influence(a_s, a_c) - influence(b_s, b_c)
     se = float(math.sqrt(n / (n - 1) * np.sum(z * z)))
-    return from_estimate(PAIRED_T, difference, se, n - 1, n, confidence)
+    result = replace(from_estimate(PAIRED_T, centre, se, n - 1, n, confidence), difference=float(difference),
+                     centre=float(centre))
+    if rate and a_s.shape[1] == 1 and max(a_c.max(), b_c.max()) <= 1:  # 0/1 pairs: exact McNemar for "vs 0"
+        won_a = int(np.sum((a_s[:n, 0] > 0.5) & (b_s[:n, 0] < 0.5)))
+        won_b = int(np.sum((a_s[:n, 0] < 0.5) & (b_s[:n, 0] > 0.5)))
+        exact = mcnemar_exact(np.r_[np.ones(won_a), np.zeros(won_b)], np.r_[np.zeros(won_a), np.ones(won_b)])
+        m = won_a + won_b
+        result = replace(result, test=f"{PAIRED_T}; exact McNemar vs 0", p_value=exact.p_value,
+                         p_greater=float(stats.binom.sf(won_a - 1, m, 0.5)) if m else 1.0,
+                         p_less=float(stats.binom.cdf(won_a, m, 0.5)) if m else 1.0)
+    return result
 
 
 PAIRED_T = "paired t over images"

@@ -48,12 +48,15 @@ class Test:
 
     def p_values(self) -> tuple[float, float, float]:
         """(p of *holds*, p of *fails*, p of *equivalent*), each one-sided; 1.0 where not applicable."""
-        d, delta, c = self.comparison.difference, self.margin, self.comparison
+        c, delta = self.comparison, self.margin
+        d = c.centre if math.isfinite(c.centre) else c.difference
         if not math.isfinite(d):
             return 1.0, 1.0, 1.0
-        if math.isfinite(c.se):
-            above = lambda x: _p_above(d, c.se, c.df, x)  # noqa: E731  p of "d > x"
-            below = lambda x: _p_above(-d, c.se, c.df, -x)  # noqa: E731  p of "d < x"
+        if math.isfinite(c.se):  # t tests; against 0 the exact test where the comparison has one
+            above = lambda x: c.p_greater if x == 0 and math.isfinite(c.p_greater) else \
+                _p_above(d, c.se, c.df, x)  # noqa: E731  p of "d > x"
+            below = lambda x: c.p_less if x == 0 and math.isfinite(c.p_less) else \
+                _p_above(-d, c.se, c.df, -x)  # noqa: E731  p of "d < x"
         elif math.isfinite(c.low) and math.isfinite(c.high):  # interval at 1 - 2 alpha: 0 when it excludes
             above = lambda x: 0.0 if c.low > x else 1.0  # noqa: E731
             below = lambda x: 0.0 if c.high < x else 1.0  # noqa: E731
@@ -120,7 +123,7 @@ def images_to_decide(test: Test, alpha: float, power: float = 0.8) -> float:
     c = test.comparison
     if not (math.isfinite(c.se) and c.se > 0 and c.n > 1 and math.isfinite(c.difference)):
         return math.nan
-    d, delta = c.difference, test.margin
+    d, delta = (c.centre if math.isfinite(c.centre) else c.difference), test.margin
     if test.kind in (BEATS, AMONG):  # heading for equivalence inside the margin, else for beyond 0 (or -delta)
         distance = delta - abs(d) if abs(d) < delta else abs(d) - delta if test.kind == AMONG and d < 0 else abs(d)
     else:

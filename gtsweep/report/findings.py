@@ -68,7 +68,8 @@ class Finding:
 def _oriented(c: statistics.Comparison, sign: int) -> statistics.Comparison:
     if sign > 0:
         return c
-    return replace(c, difference=-c.difference, low=-c.high, high=-c.low)
+    return replace(c, difference=-c.difference, low=-c.high, high=-c.low, centre=-c.centre, p_greater=c.p_less,
+                   p_less=c.p_greater)
 
 
 def _pair(data: Data, label, kind, margin, a, b, metric, sign=1, where_a=None, where_b=None, half=None):
@@ -307,7 +308,8 @@ def judge(hypothesis: Hypothesis, data: Data) -> Finding:
     lines = []
     for test, verdict, adjusted in zip(result.tests, result.parts(), result.adjusted_fail):
         c = test.comparison
-        p = f", p(fail, Holm) = {adjusted:.2g}" if len(parts) > 1 else ""
+        p = f", p = {c.p_value:.2g}" if math.isfinite(c.p_value) else ""
+        p += f", p(fail, Holm) = {adjusted:.2g}" if len(parts) > 1 else ""
         lines.append(f"{test.label}: {c.difference:+.3f} [{c.low:+.3f}, {c.high:+.3f}]{p}, n = {c.n}: {verdict}")
     need = [verdicts.images_to_decide(t, data.alpha) for t, v in zip(parts, result.parts())
             if v == verdicts.UNDECIDED]

@@ -133,7 +133,7 @@ def compare(a: pd.DataFrame, b: pd.DataFrame, metric: str, views: Views | None, 
     if not clusters:
         return None
     (sa, ca), (sb, cb) = _matrices(long_a, clusters, strata), _matrices(long_b, clusters, strata)
-    return statistics.clustered_difference(sa, ca, sb, cb, confidence)
+    return statistics.clustered_difference(sa, ca, sb, cb, confidence, schema.METRICS[metric].aggregation == "rate")
 
 
 def against(cells: pd.DataFrame, metric: str, views: Views | None, target: float, where: Mapping | None = None,
