@@ -13,12 +13,13 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
 import sys
 from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
-from gtsweep.core.paths import PROJECT_DIR
+from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
 from gtsweep.orchestration import reproduce as runs
 from gtsweep.report.findings import check_findings, survey_variant
 from gtsweep.report.samples import load_views
@@ -28,6 +29,46 @@ from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
 
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])
+TUNED = CONF_DIR / "detector" / "tuned"
+#: ``make tune``'s data set: dataset=survey with its optimisation views only.
+TUNING_DATA = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0}
+
+
+def tuning_fingerprint() -> str:
+    """The fingerprint of the data set ``make tune`` tunes on (dataset=survey, optimisation views only)."""
+    import yaml
+
+    from gtsweep.datasets import load_dataset
+
+    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
+    return load_dataset({**options, **TUNING_DATA}).fingerprint()
+
+
+def tuned_fingerprints(directory: Path = TUNED) -> dict[str, str]:
+    """Each tuned detector file's data set fingerprint, from its header ("Data set fingerprint X.")."""
+    found = {}
+    for path in sorted(Path(directory).glob("*.yaml")):
+        match = re.search(r"Data set fingerprint ([0-9a-f]+)", path.read_text())
+        found[path.stem] = match.group(1) if match else "none"
+    return found
+
+
+def tuned_line(expected: str | None, directory: Path = TUNED) -> str:
+    """What the document states about the detectors' tuned parameters: on which data set they were tuned."""
+    found = tuned_fingerprints(directory)
+    if expected is None:
+        return ""
+    stale = {k: v for k, v in found.items() if v != expected}
+    if not stale:
+        return (f"Detector parameters: all {len(found)} tuned files were tuned on this data set's optimisation "
+                f"views (fingerprint {expected}).")
+    by = {}
+    for name, fingerprint in stale.items():
+        by.setdefault(fingerprint, []).append(name)
+    which = "; ".join(f"{', '.join(names)} on {fp}" for fp, names in by.items())
+    return (f"**Detector parameters not tuned on this data set**: {len(stale)} of {len(found)} tuned files carry "
+            f"another data set's fingerprint ({which}); `make tune` on dataset=survey's optimisation views "
+            f"(fingerprint {expected}) re-tunes them.")
 
 
 def _latest(results: list[dict]) -> list[dict]:
@@ -52,7 +93,7 @@ def _size_line(size: str, results: list[dict]) -> str:
 
 
 def write_document(results: list[dict], size: str, docs: Path, alpha: float = ALPHA,
-                   sequential: Sequential | None = None) -> Path:
+                   sequential: Sequential | None = None, tuning: str | None = None) -> Path:
     """``docs/REPRODUCTION.md`` plus the tables' CSVs and the plots in ``docs/reproduction/``: the measurements,
     every finding's verdict with its test, margin and numbers, and every table with the entries tied with its
     best (each preset's newest run)."""
@@ -69,7 +110,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
              f"on this machine ({os.cpu_count()} cores): {sum(r['wall_s'] for r in results) / 60:.0f} min for all "
              "runs. Cells read `ours [low, high] (paper)` or `ours ±half-width (paper)`: our 95 % interval over "
              "images (a t interval; a design-effect Wilson interval for a rate); NA = not applicable.",
-             "", scale.line(), "",
+             "", scale.line(), "", *([tuned_line(tuning), ""] if tuning else []),
              ("| round " if rounds else "") + "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate "
              "| MLflow runs |", ("|---" if rounds else "") + "|---|---|---|---|---|---|"]
     lines += [(f"| {r['round']} " if rounds else "") + f"| {r['preset']} | {r['cells']} | {r['wall_s']:.0f} | "
@@ -185,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         saved = json.loads(record.read_text())
         results = [{**r, "output": Path(r["output"])} for r in saved["presets"]]
         sequential = _replay(results, args.alpha) if saved["size"] == "decide" else None
-        print(f"wrote {write_document(results, saved['size'], Path(args.docs), args.alpha, sequential)}")
+        tuning = tuning_fingerprint() if saved["size"] != "tiny" else None  # tiny: not dataset=survey
+        print(f"wrote {write_document(results, saved['size'], Path(args.docs), args.alpha, sequential, tuning)}")
         return 0
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
@@ -196,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         results = runs.run_fixed(args.presets, SIZES[args.size], work, log=lambda m: print(m, flush=True))
     runs.save(record, {"size": args.size, "presets": results})
-    print(f"wrote {write_document(results, args.size, Path(args.docs), args.alpha, sequential)}")
+    tuning = tuning_fingerprint() if args.size != "tiny" else None
+    print(f"wrote {write_document(results, args.size, Path(args.docs), args.alpha, sequential, tuning)}")
     return 0
 
 

@@ -50,8 +50,8 @@ class Sequential:
     """The state of every finding across rounds; :meth:`update` is the ``needed`` callback of
     :func:`gtsweep.orchestration.reproduce.run_rounds`."""
 
-    def __init__(self, alpha: float, findings: list[Hypothesis] = FINDINGS):
-        self.alpha = alpha
+    def __init__(self, alpha: float, findings: list[Hypothesis] = FINDINGS, information=fraction):
+        self.alpha, self.information = alpha, information  # information(preset, counts): fraction t in (0, 1]
         self.status = [Status(h) for h in findings]
 
     def update(self, k: int, latest: dict[str, dict]) -> set[str]:
@@ -65,7 +65,7 @@ class Sequential:
             if preset not in data:
                 frames, _ = survey_variant({preset: frame(load_summaries(run["output"]))})
                 data[preset] = (frames, {preset: load_views(run["output"])})
-            t = fraction(preset, run["counts"])
+            t = self.information(preset, run["counts"])
             nominal = spent_alpha(self.alpha, t) - s.spent
             s.finding = check(s.hypothesis, *data[preset], nominal)
             s.round, s.per_texture, s.fraction, s.spent, s.nominal = k + 1, counts(preset, run["counts"]), t, \
