@@ -6,7 +6,7 @@ import math
 import pytest
 
 from gtsweep.evaluation.statistics import Comparison
-from gtsweep.evaluation.verdicts import BEATS, Test
+from gtsweep.evaluation.verdicts import BEATS, Claim
 from gtsweep.orchestration.reproduce import run_rounds
 from gtsweep.report.findings import Hypothesis
 from gtsweep.report.pools import pairings
@@ -24,14 +24,14 @@ def _clusters(data, kind):
 
 def equal_at_once(data):
     """A difference of exactly 0: equivalent within any margin at the first look."""
-    return [Test(f"zero on {_clusters(data, 'absolute')} pairs", Comparison("fake", 0.0, 1.0, 0.0, 0.0, n=4,
+    return [Claim(f"zero on {_clusters(data, 'absolute')} pairs", Comparison("fake", 0.0, 1.0, 0.0, 0.0, n=4,
                                                                              se=0.0, df=3), BEATS, 0.1)]
 
 
 def clear_with_six_pairs(data):
     """+0.5, with an SE that is large below 6 pairs and small from 6 on: undecided, then holds."""
     n = _clusters(data, "incremental")
-    return [Test(f"+0.5 on {n} pairs", Comparison("fake", 0.5, math.nan, n=n, se=0.5 if n < 6 else 0.01, df=n - 1),
+    return [Claim(f"+0.5 on {n} pairs", Comparison("fake", 0.5, math.nan, n=n, se=0.5 if n < 6 else 0.01, df=n - 1),
                  BEATS, 0.1)]
 
 

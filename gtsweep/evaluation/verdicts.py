@@ -38,7 +38,7 @@ DECIDED = (HOLDS, FAILS, EQUIVALENT)
 
 
 @dataclass(frozen=True)
-class Test:
+class Claim:
     """One comparison of a finding: its label, the oriented comparison, the kind of claim and its margin."""
 
     label: str
@@ -84,7 +84,7 @@ def _p_above(d: float, se: float, df: int, x: float) -> float:
 @dataclass(frozen=True)
 class Verdict:
     verdict: str
-    tests: tuple[Test, ...]
+    tests: tuple[Claim, ...]
     adjusted_fail: tuple[float, ...]  # Holm-adjusted p of each comparison's failure
     alpha: float
 
@@ -98,7 +98,7 @@ class Verdict:
         return out
 
 
-def decide(tests: list[Test], alpha: float) -> Verdict:
+def decide(tests: list[Claim], alpha: float) -> Verdict:
     """The finding's verdict from its comparisons (rules in the module docstring)."""
     if not tests:
         return Verdict(UNDECIDED, (), (), alpha)
@@ -116,7 +116,7 @@ def decide(tests: list[Test], alpha: float) -> Verdict:
     return Verdict(verdict, tuple(tests), tuple(float(x) for x in adjusted), alpha)
 
 
-def images_to_decide(test: Test, alpha: float, power: float = 0.8) -> float:
+def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     """How many clusters (images or pairs) this comparison would need for its nearest verdict at the observed
     effect and SE (normal approximation, ``power``): n (z_alpha + z_power)² / z_observed² for the smallest
     distance of the estimate from a decision boundary. NaN without an SE or with the estimate on a boundary."""

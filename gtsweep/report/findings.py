@@ -23,7 +23,7 @@ import pandas as pd
 
 from gtsweep.evaluation import statistics, verdicts
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.evaluation.verdicts import AMONG, BEATS, BELOW, WITHIN, Test
+from gtsweep.evaluation.verdicts import AMONG, BEATS, BELOW, WITHIN, Claim
 from gtsweep.report.pools import (ORIENTED, PLAIN_DESCRIPTORS, SURVEY_VARIANT, UNORIENTED, Data, best,
                                   by_count, detection_cells, keeps_all, median_entry, pairings, survey_selector,
                                   table3)
@@ -49,7 +49,7 @@ class Hypothesis:
     comparison: str
     test: str
     margin: str  # the margin and its source
-    build: object  # Data -> list of Test (or point-value strings when not testable)
+    build: object  # Data -> list of Claim (or point-value strings when not testable)
 
 
 @dataclass
@@ -73,12 +73,12 @@ def _oriented(c: statistics.Comparison, sign: int) -> statistics.Comparison:
 
 
 def _pair(data: Data, label, kind, margin, a, b, metric, sign=1, where_a=None, where_b=None, half=None):
-    """A paired comparison of entries A and B as a :class:`Test` (oriented by ``sign``), or a string with the
+    """A paired comparison of entries A and B as a :class:`Claim` (oriented by ``sign``), or a string with the
     point values when there are no per-view rows."""
     result = compare(a, b, metric, data.views, where_a, where_b, half, 1 - 2 * data.alpha) if data.views else None
     if result is None:
         return f"{label}: {data.value(a, metric, where_a):.2f} vs {data.value(b, metric, where_b or where_a):.2f}"
-    return Test(label, _oriented(result, sign), kind, margin)
+    return Claim(label, _oriented(result, sign), kind, margin)
 
 
 def nms_beats_other_selectors(data: Data):
@@ -122,7 +122,7 @@ def sift_ambiguous(data: Data):
                   cells[median], "ambiguity", half=1)
     about = against(cells["sift"], "ambiguity", data.views, 1.5, confidence=1 - 2 * data.alpha) \
         if data.views else None
-    about = Test("sift ambiguity - 1.5", about, WITHIN, AMBIGUITY_MARGIN) if about is not None else \
+    about = Claim("sift ambiguity - 1.5", about, WITHIN, AMBIGUITY_MARGIN) if about is not None else \
         f"sift ambiguity {data.value(cells['sift'], 'ambiguity'):.2f} vs 1.5"
     return [large, about]
 
@@ -163,7 +163,7 @@ def unoriented_collapse_absolute(data: Data):
     if result is None:
         return [f"unoriented detectors with ORB/BRIEF/LATCH/SIFT: {data.value(cells, 'pose_success'):.2f} vs "
                 f"{COLLAPSE_BAND[0]:.3f}-{COLLAPSE_BAND[1]:.3f}"]
-    return [Test("unoriented detectors with ORB/BRIEF/LATCH/SIFT - centre of [0.075, 0.175]", result, WITHIN,
+    return [Claim("unoriented detectors with ORB/BRIEF/LATCH/SIFT - centre of [0.075, 0.175]", result, WITHIN,
                  (COLLAPSE_BAND[1] - COLLAPSE_BAND[0]) / 2)]
 
 
@@ -201,7 +201,7 @@ def precision_tracks_success(data: Data):
                            for k, v in entries.items()}).T
     result = statistics.correlation_difference(values["precision"], values["n_correct"], values["pose_success"],
                                                confidence=1 - 2 * data.alpha)
-    return [Test(f"rho(precision, success) - rho(correct matches, success), {len(values)} pairings", result, BEATS,
+    return [Claim(f"rho(precision, success) - rho(correct matches, success), {len(values)} pairings", result, BEATS,
                  RHO_MARGIN)]
 
 
