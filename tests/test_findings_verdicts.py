@@ -151,6 +151,15 @@ def test_a_rival_picked_from_the_data_is_tested_on_the_other_half_of_the_images(
     assert "best other on half 0" in found.evidence and "n = 12" in found.evidence  # 24 images, half tested
 
 
+def test_halves_alternate_textures_with_one_image_each_and_stay_when_images_are_added():
+    from gtsweep.report.samples import half_of
+
+    textures = ["carpet", "coarse_asphalt", "concrete", "fine_asphalt", "tiles", "wood"]
+    one = [half_of(f"{t}/synthetic/000", rank) for rank, t in enumerate(textures)]
+    assert one == [0, 1, 0, 1, 0, 1]
+    assert [half_of(f"wood/synthetic/{k:03d}", 5) for k in range(4)] == [1, 0, 1, 0]
+
+
 def test_the_pools_follow_the_surveys_definition_of_orientation():
     from gtsweep.report.pools import ORIENTED, UNORIENTED
 

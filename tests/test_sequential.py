@@ -55,3 +55,10 @@ def test_rounds_run_only_the_presets_of_undecided_findings(tmp_path):
     assert second.spent == pytest.approx(0.05)
     # round 2's detections of the first 2 pairs per texture came from the cache round 1 filled
     assert runs[2]["cache_hit_rate"] > 0
+    # the document: each finding with the round, count per texture and level of its verdict; compute spent
+    from gtsweep.report.reproduce import write_document
+
+    text = write_document(runs, "decide", tmp_path / "docs", 0.05, sequential).read_text()
+    assert "| equal at once | equivalent | round 1, 2, " in text
+    assert "| clear with six pairs | holds | round 2, 3, " in text
+    assert "counts per texture reached: table4_incremental 3, table5_absolute 2" in text and "Compute spent" in text

@@ -7,7 +7,8 @@ from gtsweep.report.reproduce import tuned_fingerprints, tuned_line, tuning_fing
 
 
 def _tuned(directory, name, fingerprint):
-    (directory / f"{name}.yaml").write_text(f"# @package detector\n# Data set fingerprint {fingerprint}.\n{name}: {{}}\n")
+    header = f"# @package detector\n# Data set fingerprint {fingerprint}.\n"
+    (directory / f"{name}.yaml").write_text(header + f"{name}: {{}}\n")
 
 
 def test_the_document_names_tuned_files_of_another_data_set(tmp_path):

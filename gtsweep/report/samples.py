@@ -37,12 +37,19 @@ def load_views(source: str | Path) -> dict[str, pd.DataFrame]:
     return {p.stem: pd.read_csv(p) for p in sorted(Path(source).glob("cells/*.csv"))}
 
 
-def half_of(cluster: str) -> int:
-    """0 or 1: which half of the images a cluster (``texture/.../k``) belongs to, by the parity of its last number
-    (else a CRC): stable when images are added, and balanced within each texture. A rival or "best" picked from
-    the data is picked on half 0 and tested on half 1 (docs/statistics_design.md)."""
-    digits = re.findall(r"\d+", str(cluster))
-    return int(digits[-1]) % 2 if digits else zlib.crc32(str(cluster).encode()) % 2
+def half_of(image: str, texture_rank: int = 0) -> int:
+    """0 or 1: which half of the images an image (``texture/.../k``) belongs to: the parity of k plus its texture's
+    rank among the data set's textures (sorted by name). Stable when images are added, balanced within each
+    texture, and with one image per texture the textures alternate (3 + 3 of the survey's six). A rival or "best"
+    picked from the data is picked on half 0 and tested on half 1 (docs/statistics_design.md)."""
+    digits = re.findall(r"\d+", str(image))
+    number = int(digits[-1]) if digits else zlib.crc32(str(image).encode())
+    return (number + texture_rank) % 2
+
+
+def _halves(rows: pd.DataFrame) -> np.ndarray:
+    rank = {t: i for i, t in enumerate(sorted(rows["texture"].astype(str).unique()))}
+    return np.array([half_of(i, rank[t]) for i, t in zip(rows["image"].astype(str), rows["texture"].astype(str))])
 
 
 def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
@@ -70,7 +77,7 @@ def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
         cluster = rows["texture"].astype(str) + "/" + rows["image"].astype(str)
         part = pd.DataFrame({"cluster": cluster, "stratum": f"{cell.transform}|" + repeat,
                              "sum": num.where(keep, 0.0), "count": den.where(keep, 0.0)})
-        parts.append(part if half is None else part[[half_of(c) == half for c in part["cluster"]]])
+        parts.append(part if half is None else part[_halves(rows) == half])
     return pd.concat(parts, ignore_index=True) if parts else None
 
 

@@ -42,8 +42,7 @@ class Status:
 
     @property
     def final(self) -> bool:
-        return self.decided or self.fraction >= 1.0 or (self.finding is not None and self.finding.verdict in
-                                                         ("not measured", "not testable"))
+        return self.decided or self.fraction >= 1.0  # not testable early (e.g. an empty half): more data may help
 
 
 class Sequential:
