@@ -10,9 +10,13 @@ Every number of a table is a mean over a few dozen views or pairs; these functio
   of the mean difference, ``scipy.stats.permutation_test``, with a bootstrap interval of the difference);
 - :func:`correlation_interval`: Spearman's rho with a paired bootstrap interval;
 - :func:`clustered_interval`, :func:`clustered_difference`: the same for a table cell that averages over strata
-  (transforms, strengths), resampling or swapping whole images (clusters) so correlated views stay together;
+  (transforms, strengths) over few clusters (images or pairs; their views correlated): a t interval with a
+  cluster-robust (linearised) SE, a design-effect Wilson interval for every rate, a paired t over clusters
+  (coverage simulated at 6, 12 and 25 clusters: tests/test_coverage.py);
+- :func:`holm`: Holm's step-down adjustment; :func:`spent_alpha`: Lan-DeMets Pocock-type alpha spending;
 - :func:`correlation_difference`: does one quantity rank with another more closely than a third does;
-- :func:`verdict`: *holds*, *fails* or *inconclusive* for a directional claim at significance level ``alpha``.
+- :func:`verdict`: *holds*, *fails* or *inconclusive* for a single directional comparison at level ``alpha``
+  (the survey's findings use :mod:`gtsweep.evaluation.verdicts`).
 
 Seeds make every interval bit-identical from run to run, on any backend (they run in the driver).
 """

@@ -4,14 +4,14 @@ A table entry (one number of a survey table) is made of one or more cells, e.g. 
 transform (survey Table 6 averages over transforms with equal weight). Its value is, per stratum (transform; and
 repeat in a multirun), the cell's aggregate over its views, then the mean over strata; its interval and the
 paired tests between entries come from the cells' per-view rows (``cells/<cell>.csv``, or the child runs'
-artifacts in MLflow) with :mod:`gtsweep.evaluation.statistics`, resampling or swapping whole images (clusters:
+artifacts in MLflow) with :mod:`gtsweep.evaluation.statistics`, over whole images (clusters:
 texture + image or pair id), never by averaging intervals. Two entries are matched on the images both have.
 
-An entry of one cell shows the cell's own ``<metric>_ci_low/_ci_high`` (the numbers of results.csv and MLflow);
-an entry over several cells, strengths or repeats the interval over images of
-:func:`~gtsweep.evaluation.statistics.clustered_interval` (a t interval; for a rate a design-effect Wilson
-interval, one formula for every rate including 0 and 1); without per-view rows no interval. Paired tests are
-t tests over images; the ties of a table are Holm-corrected across the table's entries.
+An entry's interval is over images, from its cells' per-view rows
+(:func:`~gtsweep.evaluation.statistics.clustered_interval`: a t interval; for a rate a design-effect Wilson
+interval, one formula for every rate including 0 and 1, Wilson's own with one view per pair); an entry of one
+cell without per-view rows shows the cell's own ``<metric>_ci_low/_ci_high`` (results.csv, MLflow); else none.
+Paired tests are t tests over images; the ties of a table are Holm-corrected across the table's entries.
 """
 from __future__ import annotations
 
