@@ -100,7 +100,8 @@ def selection_hurts_dense_detectors(data: Data):
     sel = detection_cells(data)
     return [_pair(data, f"{det} none vs {survey_selector(det, sel[det]).upper()}", BEATS, REPEATABILITY_MARGIN,
                   sel[det]["none"], sel[det][survey_selector(det, sel[det])], "repeatability")
-            for det in ("mser", "fast", "agast", "brisk") if "none" in sel.get(det, {})]
+            for det in ("mser", "fast", "agast", "brisk")
+            if "none" in sel.get(det, {}) and survey_selector(det, sel[det]) != "none"]
 
 
 def best_repeatability(data: Data):
