@@ -137,8 +137,8 @@ def test_document_writer_on_fake_runs(tmp_path):
     assert "| holds | paired t over pairs on half 1, rank claim | ±0.03" in row and "n = 10: holds" in row
     assert "censure-brief vs sift-sift (both best on half 0): +0.600" in row
     assert "| table4_incremental | CenSurE-BRIEF (pose_success 1.00) | 1 of 2 | CenSurE-ORB |" in text
-    # Wilson 20/20: [0.839, 1], half-width 0.08; 19/20: [0.764, 0.991]; the paper's number beside ours
-    assert "| CenSurE | 0.95 ±0.11 (0.93) | 1.00 ±0.08 (0.90) |  |" in text
+    # Wilson 20/20: [0.839, 1]; 19/20: [0.764, 0.991]; the paper's number beside ours
+    assert "| CenSurE | 0.95 [0.76, 0.99] (0.93) | 1.00 [0.84, 1.00] (0.90) |  |" in text
     assert "not measured" in text and (docs / "reproduction" / "table4_incremental.csv").exists()
 
 
