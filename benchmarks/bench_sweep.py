@@ -26,7 +26,7 @@ from gtsweep.core.memory import PeakMemory
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import build_grid
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS

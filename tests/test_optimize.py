@@ -15,10 +15,10 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.optimize.driver import main
 from gtsweep.optimize.objective import trial_metrics
-from gtsweep.optimize.output import tuned_node
+from gtsweep.optimize.tuned_files import tuned_node
 from gtsweep.optimize.search_space import parse_space
-from gtsweep.optimize.settings import read_settings
-from gtsweep.optimize.study import open_study
+from gtsweep.optimize.study_settings import read_settings
+from gtsweep.optimize.optuna_study import open_study
 from gtsweep.optimize.targets import Target, build_targets
 from gtsweep.orchestration.grid import build_grid
 

@@ -16,7 +16,7 @@ import pytest
 from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.tracking.store import flatten
 from gtsweep.tracking.sweep import SweepTracker, step_scale
 

@@ -12,7 +12,7 @@ import hashlib
 
 import numpy as np
 
-from gtsweep.stages.pairing import describe_timed
+from gtsweep.stages.applicability import describe_timed
 
 
 def _digest(array: np.ndarray) -> bytes:

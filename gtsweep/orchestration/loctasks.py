@@ -25,11 +25,11 @@ from gtsweep.datasets.core import read_gray
 from gtsweep.orchestration.cache import KeypointCache, detect_cached, library_versions
 from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.tasks import counts, failure
+from gtsweep.stages.applicability import describe_timed
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns
 from gtsweep.stages.match import MATCHERS
-from gtsweep.stages.pairing import describe_timed
 from gtsweep.stages.pose import ESTIMATORS
 
 MAP_FIELDS = ("xy", "angle", "descriptors", "image", "build_seconds")

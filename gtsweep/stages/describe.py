@@ -1,7 +1,7 @@
 """Feature description (survey section 2.3): a registry of descriptors, their norms and their requirements.
 
 A descriptor declares which keypoints it can describe (``only_detectors``, ``excluded_detectors``,
-``requires_orientation``); :mod:`gtsweep.stages.pairing` turns that into the survey's NA cells (section 5.2),
+``requires_orientation``); :mod:`gtsweep.stages.applicability` turns that into the survey's NA cells (section 5.2),
 since it needs the detectors' capabilities too. Foreign keypoints are normalised before description: their
 ``octave`` is reset to 0 (SIFT packs a large integer there and MSD uses 0–14; OpenCV's ORB/SIFT would read it as a
 pyramid level and try to allocate ~68 GB), and keypoints without an orientation are described upright (angle 0).
@@ -103,7 +103,7 @@ def describe(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
 
     Returns ``(kept_keypoints, descriptors)``: descriptors may drop keypoints (e.g. near the border), so the
     returned keypoints are the ones aligned with the descriptor rows. Binary descriptors are uint8, real-valued
-    ones float32. It does not judge the pairing: :mod:`gtsweep.stages.pairing` says which the survey calls NA.
+    ones float32. It does not judge the pairing: :mod:`gtsweep.stages.applicability` says which the survey calls NA.
     """
     kept, descriptors, _ = describe_timed(image, keypoints, name, detector, **params)
     return kept, descriptors
