@@ -66,7 +66,7 @@ def test_plugins_must_be_module_names():
         plugins.enable("mypkg")
 
 
-def test_the_planted_preset_of_issue_28_writes_nothing_and_exits_2(tmp_path):
+def _plant_issue_28(tmp_path: Path) -> None:
     (tmp_path / "tuned/sweeps").mkdir(parents=True)
     (tmp_path / "tuned/sweeps/smoke.yaml").write_text(
         "# @package _global_\ndefaults:\n  - override /detector: [planted]\n  - override /descriptor: [orb]\n"
@@ -74,12 +74,24 @@ def test_the_planted_preset_of_issue_28_writes_nothing_and_exits_2(tmp_path):
     (tmp_path / "tuned/detector").mkdir(parents=True)
     (tmp_path / "tuned/detector/planted.yaml").write_text(
         "factory: subprocess.Popen\norientation: true\nparams: {args: \"id > PWNED\", shell: true}\n")
-    for args in (["sweeps=smoke", "runner.backend=serial"], ["detector=[planted]", "runner.backend=serial"]):
-        result = run_cli(args, tmp_path)
-        assert result.returncode == 2, result.stderr
-        assert not (tmp_path / "PWNED").exists()
-        lines = result.stderr.strip().splitlines()
-        assert len(lines) == 1 and "factory 'subprocess.Popen' is outside the allowed modules" in lines[0]
+
+
+def test_the_planted_detector_of_issue_28_named_explicitly_is_one_line(tmp_path):
+    _plant_issue_28(tmp_path)
+    result = run_cli(["detector=[planted]", "runner.backend=serial"], tmp_path)
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert not (tmp_path / "PWNED").exists()
+
+
+@pytest.mark.slow
+def test_the_command_of_issue_28_runs_no_planted_code(tmp_path):
+    """./tuned is no longer searched for presets (the README's smoke runs), and were the planted file found, its
+    factory would be refused."""
+    _plant_issue_28(tmp_path)
+    result = run_cli(["sweeps=smoke", "runner.backend=serial", "report.plots=false"], tmp_path)
+    assert not (tmp_path / "PWNED").exists()
+    assert "Traceback" not in result.stderr
+    assert result.returncode == 0 or (result.returncode == 2 and "outside the allowed modules" in result.stderr)
 
 
 def test_an_explicit_tuned_file_with_a_foreign_factory_is_refused(tmp_path):

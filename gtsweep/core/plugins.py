@@ -25,6 +25,8 @@ from gtsweep.core.errors import BadInput
 BUILT_IN = ("cv2", "gtsweep")
 #: The enabled plugins, comma-separated (inherited by Ray workers).
 ENV = "GTSWEEP_PLUGINS"
+#: Hydra's names for config directories the user gave: ``--config-dir`` and ``hydra.searchpath=`` overrides.
+USER_PROVIDERS = ("command-line", "hydra.searchpath in command-line")
 _DOTTED = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
 
 
@@ -83,13 +85,14 @@ def _names(plugins) -> tuple[str, ...]:
 
 
 def _named_by_user(name: str, hydra_cfg) -> bool:
-    """``name`` appears in a ``plugins=`` command-line override or in a YAML file under a ``--config-dir``."""
+    """``name`` appears in a ``plugins=`` command-line override or in a YAML file under a config directory the
+    user gave (``--config-dir``, or ``hydra.searchpath=`` on the command line)."""
     for override in hydra_cfg.overrides.task:
         key, _, value = str(override).lstrip("+~").partition("=")
         if key == "plugins" and name in re.split(r"[\s,\[\]'\"]+", value):
             return True
     for source in hydra_cfg.runtime.config_sources:
-        if source.provider == "command-line" and source.schema == "file":
+        if source.provider in USER_PROVIDERS and source.schema == "file":
             root = Path(str(source.path))
             for file in [*root.rglob("*.yaml"), *root.rglob("*.yml")]:
                 if _mentions_plugin(file, name):
