@@ -83,7 +83,7 @@ def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor
     :class:`~gtsweep.evaluation.reuse.DescribeOnce`, so images seen before (a reference under several strengths,
     several reference counts) are not described again.
     """
-    memo = memo or DescribeOnce(descriptor, detector, descriptor_params)
+    memo = memo or DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
     if experiment.get("test_count") is not None:
         test_kps = test_kps[:experiment["test_count"]]
     ref_kept, ref_desc, t_ref = memo.describe(view.reference, ref_kps, reference_count)

@@ -147,7 +147,8 @@ def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: 
     counts = experiment.get("reference_counts") or [None]
     norm, iou = DESCRIPTORS.get(descriptor).norm, experiment.get("iou_threshold", 0.5)
     results: dict[Combination, list[dict] | Exception] = {(m, e): [] for m in matchers for e in estimators}
-    memo = DescribeOnce(descriptor, detector, descriptor_params)  # every image of the shard described once
+    # every image of the shard described once
+    memo = DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
     for (meta, view), (ref, test), det_row in zip(views(shard, transform, transform_cfg, seed), keypoints,
                                                    detection_rows):
         view_seed = stable_seed(seed, meta["view"])
