@@ -130,13 +130,17 @@ def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector
         return kp.empty(), _empty_descriptors(spec, extractor), 0.0
     start = time.perf_counter()
     try:
-        found, descriptors = extractor.compute(image, kp.to_keypoints(prepared))
+        if hasattr(extractor, "compute_array"):  # gtsweep's own extractors (NumPy SURF): arrays in and out
+            kept, descriptors = extractor.compute_array(image, kp.float32_exact(prepared))
+        else:
+            found, descriptors = extractor.compute(image, kp.to_keypoints(prepared))
+            kept = kp.to_array(found) if descriptors is not None else kp.empty()
     except cv2.error as e:
         raise GtsweepError(f"descriptor '{name}' failed on {detector} keypoints: {reason_line(e)}") from None
     seconds = time.perf_counter() - start
-    if descriptors is None or len(found) == 0:
+    if descriptors is None or len(kept) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), seconds
-    return kp.to_array(found), np.ascontiguousarray(descriptors), seconds
+    return kept, np.ascontiguousarray(descriptors), seconds
 
 
 def prepare_keypoints(keypoints: np.ndarray, detector: str, spec: DescriptorSpec, extractor, shape,

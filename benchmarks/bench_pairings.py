@@ -1,0 +1,132 @@
+"""Cost per pairing at the survey's 1288 x 964: detection per detector, description per (detector, descriptor),
+and each foreign pairing's description cost as a multiple of its descriptor's native one (issue 25).
+
+    python benchmarks/bench_pairings.py                      # survey Table 4's grid, foreign keypoints at own scale
+    python benchmarks/bench_pairings.py --compare octave0    # also the octave-0 description (gtsweep before 25)
+
+The image is one rendered `dataset=survey` view (1288 x 964; rendered once into .gtsweep_cache, ~15 s); the
+detectors run with the table presets' tuned parameters, keypoints reduced to the 1000 strongest (NMS), as in
+Tables 4 and 5. Times are the detector's and the descriptor's own call (best of --repeat), OpenCV on 1 thread
+as in a Ray task; ms per image. "native" is the descriptor on its own family's keypoints (SIFT on SIFT's, ...);
+descriptors without a detector of their own (BRIEF, LATCH, FREAK, DAISY) have no ratio. Target: no foreign
+pairing above 2x its descriptor's native cost. Prints figures; no pass/fail.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import cv2
+import numpy as np
+
+from gtsweep.cli.overrides import compose_config
+from gtsweep.core.errors import GtsweepError
+from gtsweep.datasets import load_dataset
+from gtsweep.orchestration.grid import build_grid
+from gtsweep.stages.describe import descriptor_params
+from gtsweep.stages.detect import detect_timed
+from gtsweep.stages.pairing import applicability, describe_timed
+from gtsweep.stages.scales import FOREIGN_SCALES, OWN
+from gtsweep.stages.select import select_nms
+
+TARGET = 2.0  # issue 25: no foreign pairing's description above 2x its descriptor's native one
+
+
+def survey_view(texture: str) -> np.ndarray:
+    """One synthetic-split view of ``texture`` from the survey-size data set (1288 x 964, capture physics)."""
+    cfg = compose_config(["dataset=survey", f"dataset.textures=[{texture}]", "dataset.n_synthetic=1",
+                          "dataset.n_incremental=0", "dataset.n_absolute=0", "dataset.n_optimisation=0"])
+    return load_dataset(cfg.dataset).images("synthetic")[0].load()
+
+
+def best(run, repeat: int):
+    """The smallest time a call reports over ``repeat`` calls, and the last call's result."""
+    times, result = [], None
+    for _ in range(repeat):
+        result = run()
+        times.append(result[-1])
+    return min(times), result
+
+
+def detections(image, grid, repeat: int) -> dict[str, tuple[np.ndarray, float]]:
+    """Per detector: the 1000 strongest keypoints and the detection time (s)."""
+    found = {}
+    for name, cfg in grid.detectors.items():
+        seconds, (keypoints, _) = best(lambda: detect_timed(image, name, None, **cfg["params"]), repeat)
+        found[name] = select_nms(keypoints, image.shape, n=1000), seconds
+    return found
+
+
+def descriptions(image, grid, found, option: str, repeat: int) -> dict[tuple[str, str], float | str]:
+    """Per (detector, descriptor): the description time (s), "NA" or the error's one line."""
+    costs = {}
+    for detector, (keypoints, _) in found.items():
+        for descriptor, cfg in grid.descriptors.items():
+            if applicability(detector, descriptor):
+                costs[detector, descriptor] = "NA"
+                continue
+            params = descriptor_params(cfg, detector)
+            try:
+                costs[detector, descriptor] = best(
+                    lambda: describe_timed(image, keypoints, descriptor, detector, option, **params), repeat)[0]
+            except GtsweepError as e:
+                costs[detector, descriptor] = f"error: {e}"
+    return costs
+
+
+def table(found, costs, descriptors, option: str) -> tuple[str, list[tuple[float, str]]]:
+    """The markdown cost table (ms) and each foreign pairing's (ratio to native, name)."""
+    native = {d: costs.get((d, d)) for d in descriptors}
+    lines = [f"description ms per image (foreign keypoints: {option}); ratio to the descriptor's native cost",
+             "", "| detector | detect ms | " + " | ".join(descriptors) + " |", "|---" * (len(descriptors) + 2) + "|"]
+    ratios = []
+    for detector, (keypoints, seconds) in found.items():
+        cells = []
+        for descriptor in descriptors:
+            cost = costs[detector, descriptor]
+            if isinstance(cost, str):
+                cells.append("NA" if cost == "NA" else "error")
+                continue
+            reference = native[descriptor]
+            if detector == descriptor or not isinstance(reference, float) or reference <= 0:
+                cells.append(f"{cost * 1e3:.1f}" + (" (native)" if detector == descriptor else ""))
+                continue
+            ratio = cost / reference
+            ratios.append((ratio, f"{detector}-{descriptor}"))
+            cells.append(f"{cost * 1e3:.1f} ({ratio:.2f}x)")
+        lines.append(f"| {detector} ({len(keypoints)} kp) | {seconds * 1e3:.1f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines), ratios
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--texture", default="coarse_asphalt")
+    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--compare", choices=[o for o in FOREIGN_SCALES if o != OWN], nargs="*", default=[],
+                        help="also time foreign keypoints under these options")
+    parser.add_argument("--sweep", default="table4_incremental", help="the preset whose grid is timed")
+    args = parser.parse_args()
+    grid = build_grid(compose_config([f"sweeps={args.sweep}", "mlflow.enabled=false"]))
+    image = survey_view(args.texture)
+    cv2.setNumThreads(1)
+    start = time.perf_counter()
+    found = detections(image, grid, args.repeat)
+    print(f"{image.shape[1]}x{image.shape[0]} survey view ({args.texture}); {args.sweep}'s detectors (tuned) and "
+          f"descriptors; NMS to 1000; OpenCV {cv2.__version__}, 1 thread; best of {args.repeat}")
+    for option in [OWN, *args.compare]:
+        costs = descriptions(image, grid, found, option, args.repeat)
+        text, ratios = table(found, costs, list(grid.descriptors), option)
+        print()
+        print(text)
+        errors = sorted({f"{d}-{s}: {c}" for (d, s), c in costs.items() if isinstance(c, str) and c != "NA"})
+        print("\n".join(errors))
+        worst = max(ratios, default=(float("nan"), "-"))
+        over = [name for ratio, name in ratios if ratio > TARGET]
+        print(f"\n[{option}] largest foreign/native description ratio: {worst[0]:.2f}x ({worst[1]}); "
+              f"{len(over)} of {len(ratios)} foreign pairings above {TARGET:g}x" + (f": {', '.join(over)}" if over
+                                                                                  else ""))
+    print(f"\nbenchmark wall time {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
