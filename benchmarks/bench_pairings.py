@@ -6,8 +6,10 @@ and each foreign pairing's description cost as a multiple of its descriptor's na
 
 The image is one rendered `dataset=survey` view (1288 x 964; rendered once into .gtsweep_cache, ~15 s); the
 detectors run with the table presets' tuned parameters, keypoints reduced to the 1000 strongest (NMS), as in
-Tables 4 and 5. Times are the detector's and the descriptor's own call (best of --repeat), OpenCV on 1 thread
-as in a Ray task; ms per image. "native" is the descriptor on its own family's keypoints (SIFT on SIFT's, ...);
+Tables 4 and 5. Times are the CPU time of the calling thread (``time.thread_time``) for the detection and for the
+description (keypoint preparation included), best of --repeat, OpenCV on 1 thread as in a Ray task: unlike wall
+time they hold when other processes share the cores. ms per image; each descriptor's pairings (native, foreign,
+every option) are timed in one block, repeats interleaved. "native" is the descriptor on its own family's keypoints (SIFT on SIFT's, ...);
 descriptors without a detector of their own (BRIEF, LATCH, FREAK, DAISY) have no ratio. Target: no foreign
 pairing above 2x its descriptor's native cost. Prints figures; no pass/fail.
 """
@@ -39,45 +41,54 @@ def survey_view(texture: str) -> np.ndarray:
     return load_dataset(cfg.dataset).images("synthetic")[0].load()
 
 
-def best(run, repeat: int):
-    """The smallest time a call reports over ``repeat`` calls, and the last call's result."""
-    times, result = [], None
-    for _ in range(repeat):
-        result = run()
-        times.append(result[-1])
-    return min(times), result
+def cpu_seconds(run):
+    """``run()``'s result and the CPU time of this thread it took."""
+    start = time.thread_time()
+    result = run()
+    return result, time.thread_time() - start
 
 
 def detections(image, grid, repeat: int) -> dict[str, tuple[np.ndarray, float]]:
-    """Per detector: the 1000 strongest keypoints and the detection time (s)."""
+    """Per detector: the 1000 strongest keypoints and the detection's CPU time (s, best of ``repeat``)."""
     found = {}
     for name, cfg in grid.detectors.items():
-        seconds, (keypoints, _) = best(lambda: detect_timed(image, name, None, **cfg["params"]), repeat)
-        found[name] = select_nms(keypoints, image.shape, n=1000), seconds
+        runs = [cpu_seconds(lambda: detect_timed(image, name, None, **cfg["params"])) for _ in range(repeat)]
+        found[name] = select_nms(runs[-1][0][0], image.shape, n=1000), min(s for _, s in runs)
     return found
 
 
-def descriptions(image, grid, found, option: str, repeat: int) -> dict[tuple[str, str], float | str]:
-    """Per (detector, descriptor): the description time (s), "NA" or the error's one line."""
-    costs = {}
-    for detector, (keypoints, _) in found.items():
-        for descriptor, cfg in grid.descriptors.items():
-            if applicability(detector, descriptor):
-                costs[detector, descriptor] = "NA"
-                continue
-            params = descriptor_params(cfg, detector)
-            try:
-                costs[detector, descriptor] = best(
-                    lambda: describe_timed(image, keypoints, descriptor, detector, option, **params), repeat)[0]
-            except GtsweepError as e:
-                costs[detector, descriptor] = f"error: {e}"
+def descriptions(image, grid, found, options, repeat: int) -> dict[tuple[str, str, str], float | str]:
+    """Per (option, detector, descriptor): the description's CPU time (s, best of ``repeat``), "NA" or the
+    error's one line. Native pairings are timed once (no option applies to them) and shown under every option."""
+    costs: dict[tuple[str, str, str], float | str] = {}
+    for descriptor, cfg in grid.descriptors.items():
+        for _ in range(repeat):
+            for detector, (keypoints, _) in found.items():
+                runs = [OWN] if detector == descriptor else options
+                for option in runs:
+                    key = (option, detector, descriptor)
+                    if isinstance(costs.get(key), str):
+                        continue
+                    if applicability(detector, descriptor):
+                        costs[key] = "NA"
+                        continue
+                    params = descriptor_params(cfg, detector)
+                    try:
+                        _, seconds = cpu_seconds(
+                            lambda: describe_timed(image, keypoints, descriptor, detector, option, **params))
+                    except GtsweepError as e:
+                        costs[key] = f"error: {e}"
+                        continue
+                    costs[key] = min(seconds, costs.get(key, seconds))
+        for option in options:
+            costs[option, descriptor, descriptor] = costs.get((OWN, descriptor, descriptor), "NA")
     return costs
 
 
 def table(found, costs, descriptors, option: str) -> tuple[str, list[tuple[float, str]]]:
     """The markdown cost table (ms) and each foreign pairing's (ratio to native, name)."""
     native = {d: costs.get((d, d)) for d in descriptors}
-    lines = [f"description ms per image (foreign keypoints: {option}); ratio to the descriptor's native cost",
+    lines = [f"description CPU ms per image (foreign keypoints: {option}); ratio to the descriptor's native cost",
              "", "| detector | detect ms | " + " | ".join(descriptors) + " |", "|---" * (len(descriptors) + 2) + "|"]
     ratios = []
     for detector, (keypoints, seconds) in found.items():
@@ -101,7 +112,7 @@ def table(found, costs, descriptors, option: str) -> tuple[str, list[tuple[float
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--texture", default="coarse_asphalt")
-    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--compare", choices=[o for o in FOREIGN_SCALES if o != OWN], nargs="*", default=[],
                         help="also time foreign keypoints under these options")
     parser.add_argument("--sweep", default="table4_incremental", help="the preset whose grid is timed")
@@ -110,11 +121,16 @@ def main() -> None:
     image = survey_view(args.texture)
     cv2.setNumThreads(1)
     start = time.perf_counter()
-    found = detections(image, grid, args.repeat)
+    found = detections(image, grid, 1)  # CPU time: one run suffices (MSD alone takes ~10 s)
     print(f"{image.shape[1]}x{image.shape[0]} survey view ({args.texture}); {args.sweep}'s detectors (tuned) and "
-          f"descriptors; NMS to 1000; OpenCV {cv2.__version__}, 1 thread; best of {args.repeat}")
-    for option in [OWN, *args.compare]:
-        costs = descriptions(image, grid, found, option, args.repeat)
+          f"descriptors; NMS to 1000; OpenCV {cv2.__version__}, 1 thread; CPU ms, best of {args.repeat}")
+    options = [OWN, *args.compare]
+    every = descriptions(image, grid, found, options, args.repeat)
+    for option in options:
+        costs = {(d, s): c for (o, d, s), c in every.items() if o == option}
+        for detector in found:
+            for descriptor in grid.descriptors:
+                costs.setdefault((detector, descriptor), "NA")
         text, ratios = table(found, costs, list(grid.descriptors), option)
         print()
         print(text)
