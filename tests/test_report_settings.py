@@ -25,7 +25,7 @@ def test_two_settings_side_by_side_with_paired_tests(tmp_path):
     files = combine(tmp_path, plots=False)
     assert tmp_path / "combined" / "settings.md" in files
     rows = pd.read_csv(tmp_path / "combined" / "settings.csv").set_index(["detector", "descriptor"])
-    first, second = "experiment.foreign_scale=own", "experiment.foreign_scale=octave0"  # in job order
+    first, second = "own", "octave0"  # in job order, labelled by the value of the one key they vary
     moved = rows.loc[("censure", "sift")]
     assert moved[first].startswith("0.90 [") and moved[second].startswith("0.30 [")
     assert moved[f"{second} - {first}"] == "-0.60 (p = 0.00049)" and moved[f"moves ({second})"] == "yes"
@@ -35,8 +35,9 @@ def test_two_settings_side_by_side_with_paired_tests(tmp_path):
     text = (tmp_path / "combined" / "settings.md").read_text()
     # mean |ours - survey| over the two cells (survey: CenSurE-SIFT 0.82, SIFT-SIFT 0.84): octave0
     # (|0.30 - 0.82| + |0.75 - 0.84|) / 2 = 0.305, own (0.08 + 0.09) / 2 = 0.085
-    assert "- `experiment.foreign_scale=own`: mean |ours - survey| 0.085 over 2 cells" in text
-    assert "- `experiment.foreign_scale=octave0`: 1 of 2 cells move; mean |ours - survey| 0.305 over 2 cells" in text
+    assert text.startswith("**experiment.foreign_scale side by side: pose_success")
+    assert "- `own`: mean |ours - survey| 0.085 over 2 cells" in text
+    assert "- `octave0`: 1 of 2 cells move; mean |ours - survey| 0.305 over 2 cells" in text
 
 
 def test_one_setting_writes_no_comparison(tmp_path):

@@ -55,10 +55,21 @@ def _interval(value: float, low: float, high: float) -> str:
     return f"{value:.2f} [{low:.2f}, {high:.2f}]" if math.isfinite(low) and math.isfinite(high) else f"{value:.2f}"
 
 
+def setting_labels(settings: list[str]) -> tuple[dict[str, str], str]:
+    """Column labels of the settings and what they vary: the values alone when every setting is one override
+    of the same key (``own``, ``octave0``; ``experiment.foreign_scale``), else the settings themselves."""
+    single = all("=" in s and " " not in s for s in settings)
+    keys = {s.split("=", 1)[0].lstrip("+") for s in settings} if single else set()
+    if len(keys) == 1:
+        return {s: s.split("=", 1)[1] for s in settings}, keys.pop()
+    return {s: s for s in settings}, "settings"
+
+
 def settings_rows(jobs: list[dict], by_job: dict, views_by_job: dict, alpha: float) -> pd.DataFrame:
     """One row per pose-success cell: each setting's value and interval, the paired test against the first
-    setting, the survey's value."""
+    setting, the survey's value (columns labelled by :func:`setting_labels`)."""
     settings = list(dict.fromkeys(job["setting"] for job in jobs))  # in job order
+    label = setting_labels(settings)[0]
     data = {s: _setting_cells(jobs, by_job, views_by_job, s) for s in settings}
     base_cells, views = data[settings[0]]
     if base_cells.empty or METRIC not in base_cells:
@@ -73,19 +84,19 @@ def settings_rows(jobs: list[dict], by_job: dict, views_by_job: dict, alpha: flo
         row = {"detector": first["detector"], "descriptor": first["descriptor"], "transform": first["transform"],
                "survey": _paper_value(first["transform"], first["detector"], first["descriptor"])}
         value, low, high = estimate(base, METRIC, views)
-        row[settings[0]] = _interval(value, low, high)
+        row[label[settings[0]]] = _interval(value, low, high)
         for setting in settings[1:]:
             cells = data[setting][0]
             other = cells[cells["cell"] == cell] if not cells.empty else cells
             if other.empty or other[METRIC].isna().all():
-                row[setting] = "NA"
+                row[label[setting]] = "NA"
                 continue
             value_b, low_b, high_b = estimate(other, METRIC, views)
-            row[setting] = _interval(value_b, low_b, high_b)
+            row[label[setting]] = _interval(value_b, low_b, high_b)
             test = compare(other, base, METRIC, views)
             if test is not None:
-                row[f"{setting} - {settings[0]}"] = f"{test.difference:+.2f} (p = {test.p_value:.2g})"
-                row[f"moves ({setting})"] = "yes" if test.p_value < alpha else ""
+                row[f"{label[setting]} - {label[settings[0]]}"] = f"{test.difference:+.2f} (p = {test.p_value:.2g})"
+                row[f"moves ({label[setting]})"] = "yes" if test.p_value < alpha else ""
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -93,7 +104,9 @@ def settings_rows(jobs: list[dict], by_job: dict, views_by_job: dict, alpha: flo
 def settings_markdown(rows: pd.DataFrame, settings: list[str], alpha: float) -> str:
     """The table of :func:`settings_rows` with a line per setting: cells that move, and the mean absolute
     distance to the survey over the cells it reports."""
-    lines = [f"**Settings side by side: {METRIC} per cell with its 95 % interval; paired test of each setting "
+    label, varied = setting_labels(settings)
+    settings = [label[s] for s in settings]
+    lines = [f"**{varied} side by side: {METRIC} per cell with its 95 % interval; paired test of each setting "
              f"against `{settings[0]}` on the same views (a cell moves at alpha = {alpha})**", ""]
     columns = ["detector", "descriptor", "transform", *[c for c in rows.columns
                                                           if c not in ("detector", "descriptor", "transform")]]
