@@ -16,7 +16,7 @@ import pandas as pd
 
 from gtsweep.report.labels import paper_label, shown_label
 from gtsweep.report.samples import compare, estimate
-from gtsweep.report.tables import frame, paper
+from gtsweep.report.tables import fmt, frame, paper
 
 METRIC = "pose_success"
 #: The survey's table of each real-pair transform (pose success per detector and descriptor).
@@ -49,12 +49,6 @@ def _paper_value(transform: str, detector: str, descriptor: str) -> float:
         return math.nan
 
 
-def _interval(value: float, low: float, high: float) -> str:
-    if math.isnan(value):
-        return "NA"
-    return f"{value:.2f} [{low:.2f}, {high:.2f}]" if math.isfinite(low) and math.isfinite(high) else f"{value:.2f}"
-
-
 def setting_labels(settings: list[str]) -> tuple[dict[str, str], str]:
     """Column labels of the settings and what they vary: the values alone when every setting is one override
     of the same key (``own``, ``octave0``; ``experiment.foreign_scale``), else the settings themselves."""
@@ -84,7 +78,7 @@ def settings_rows(jobs: list[dict], by_job: dict, views_by_job: dict, alpha: flo
         row = {"detector": first["detector"], "descriptor": first["descriptor"], "transform": first["transform"],
                "survey": _paper_value(first["transform"], first["detector"], first["descriptor"])}
         value, low, high = estimate(base, METRIC, views)
-        row[label[settings[0]]] = _interval(value, low, high)
+        row[label[settings[0]]] = fmt(value, low=low, high=high)
         for setting in settings[1:]:
             cells = data[setting][0]
             other = cells[cells["cell"] == cell] if not cells.empty else cells
@@ -92,7 +86,7 @@ def settings_rows(jobs: list[dict], by_job: dict, views_by_job: dict, alpha: flo
                 row[label[setting]] = "NA"
                 continue
             value_b, low_b, high_b = estimate(other, METRIC, views)
-            row[label[setting]] = _interval(value_b, low_b, high_b)
+            row[label[setting]] = fmt(value_b, low=low_b, high=high_b)
             test = compare(other, base, METRIC, views)
             if test is not None:
                 row[f"{label[setting]} - {label[settings[0]]}"] = f"{test.difference:+.2f} (p = {test.p_value:.2g})"
