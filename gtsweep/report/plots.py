@@ -20,11 +20,10 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from gtsweep.evaluation import schema  # noqa: E402
+from gtsweep.evaluation.transforms import STRENGTH_AXIS  # noqa: E402
 from gtsweep.report.labels import label  # noqa: E402
 from gtsweep.report.samples import Views, estimate  # noqa: E402
 
-STRENGTH_AXIS = {"rotation": "rotation angle (deg)", "translation": "IoU of reference and test masks",
-                 "noise": "noise sigma", "gamma": "gamma"}
 
 
 def _series_name(methods: dict) -> str:
