@@ -83,7 +83,7 @@ def options_by_name(loaded: Iterable[tuple[str, str]]) -> dict[str, dict[str, st
     written: dict[str, dict[str, str]] = {}
     for package, path in loaded:
         group, _, option = path.partition("/")
-        if package == group and option:
+        if package == group and option and group != "hydra":  # Hydra's own configs are no method
             written.setdefault(group, {})[option.split("/")[-1]] = option
     return written
 
