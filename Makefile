@@ -34,8 +34,10 @@ test-fast: $(STAMP)
 bench: $(STAMP)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
+# MLflow's UI on this directory's store; prints the address of the experiment in the model-training view
+# (MLflow 3.17 opens its GenAI layout otherwise) with the saved view "gtsweep: pairings".
 ui: $(STAMP)
-	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port 5000
+	$(BIN)/python -m gtsweep.tracking.ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --port 5000
 
 # Detector parameters for the table presets (conf/detector/tuned/, shipped in the package): the studies behind the
 # committed files, about 40 minutes on 2 cores (MSD alone ~17). A study already in .gtsweep_cache/optuna.db is

@@ -60,7 +60,8 @@ def test_cell_params_name_every_dimension_of_the_cell():
                                      "cache_dir": ".gtsweep_cache", "incremental": {"overlap_mean": 0.2}}}
     params = cell_params(cell, method_config, config, "fp123", {"detector": {"sift": "tuned/sift"}})
     assert params == {"detector": "tuned/sift", "selector": "nms", "descriptor": "brief", "transform": "incremental",
-                      "matcher": "bf_ratio", "estimator": "ransac", "seed": "1", "dataset.name": "synthetic",
+                      "matcher": "bf_ratio", "estimator": "ransac", "seed": "1", "dataset": "synthetic",
+                      "dataset.name": "synthetic",
                       "dataset.n_incremental": "1", "dataset.textures": '["carpet", "wood"]',
                       "dataset.fingerprint": "fp123", "detector.params.sigma": "1.6", "selector.params.n": "1000",
                       "transform.kind": "pairs", "experiment.name": "pose", "matcher.params.ratio": "0.7"}
@@ -103,7 +104,7 @@ def test_saved_view_is_an_experiment_tag_the_ui_reads(client):
     assert state["searchFilter"] == "tags.`gtsweep.cell` LIKE '%'"
     assert "params.`detector`" in state["selectedColumns"] and "metrics.`pose_success`" in state["selectedColumns"]
     assert [k["groupByData"] for k in state["groupBy"]["groupByKeys"]] == [
-        "detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset.name"]
+        "detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset"]
     save_pairings_view(client, experiment, "gtsweep.cell")  # unchanged: not rewritten
     assert json.loads(client.get_experiment(experiment).tags[f"mlflow.sharedViewState.{VIEW_KEY}"]) == envelope
     assert runs_url("http://h:5/", "7") == \
@@ -143,7 +144,7 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
                         on_start=lambda grid, fp: tracker.start(grid, fp, library_versions()))
     tracker.end(outcome)
     mlflow.set_tracking_uri(uri)
-    for query in ("params.seed = '1'", "params.detector = 'orb'", "params.`dataset.name` = 'synthetic'",
+    for query in ("params.seed = '1'", "params.detector = 'orb'", "params.dataset = 'synthetic'",
                   f"params.`dataset.fingerprint` = '{outcome.dataset_fingerprint}'"):
         found = mlflow.search_runs(experiment_names=["gtsweep"], filter_string=query)
         assert set(found["tags.mlflow.runName"]) >= {"orb·nms·rot · seed=1"}, query

@@ -8,6 +8,7 @@ page shows the runs' figures side by side.
 from __future__ import annotations
 
 import math
+import textwrap
 from typing import Mapping
 
 from gtsweep.evaluation import schema
@@ -40,7 +41,8 @@ def strength_figure(summary: Mapping, experiment: str, title: str):
     strengths = sorted(by_strength, key=float)
     xs = [float(s) for s in strengths]
     transform = (summary.get("methods") or {}).get("transform", "")
-    figure = Figure(figsize=(4.2 * len(metrics), 3.4), layout="constrained")
+    width = max(6.0, 4.2 * len(metrics))  # inches at 100 dpi: the run's name fits above one panel too
+    figure = Figure(figsize=(width, 3.6), layout="constrained")
     for ax, metric in zip(figure.subplots(1, len(metrics), squeeze=False)[0], metrics):
         ys = [_value(by_strength[s].get(metric)) for s in strengths]
         ax.plot(xs, ys, marker="o")
@@ -49,7 +51,7 @@ def strength_figure(summary: Mapping, experiment: str, title: str):
         if schema.METRICS[metric].bounded:
             ax.set_ylim(-0.03, 1.03)
         ax.grid(alpha=0.3)
-    figure.suptitle(title)
+    figure.suptitle(textwrap.fill(title, int(width * 11)), fontsize=10)
     return figure
 
 

@@ -45,11 +45,13 @@ def config_params(config: Mapping, fingerprint: str) -> dict[str, str]:
 
 
 def dataset_params(config: Mapping, fingerprint: str) -> dict[str, str]:
-    """The data set of a cell: its top-level settings (name, loader, root, sizes, counts, seed; not the nested
-    laws of its pose generator, which the fingerprint covers) and its fingerprint."""
+    """The data set of a cell: its name (``dataset``, as the methods: the sweep's run has ``dataset.name`` from its
+    config only), its top-level settings (loader, root, sizes, counts, seed; not the nested laws of its pose
+    generator, which the fingerprint covers) and its fingerprint."""
     dataset = config.get("dataset") or {}
     settings = {k: v for k, v in dataset.items() if not isinstance(v, Mapping) and k not in DATASET_PLUMBING}
-    return {**flatten({"dataset": settings}), FINGERPRINT: fingerprint}
+    named = {"dataset": str(dataset["name"])} if dataset.get("name") is not None else {}
+    return {**named, **flatten({"dataset": settings}), FINGERPRINT: fingerprint}
 
 
 def cell_params(cell, method_config: Mapping, config: Mapping, fingerprint: str,

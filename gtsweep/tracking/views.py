@@ -23,7 +23,7 @@ VIEW_NAME = "gtsweep: pairings"
 VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 TRAINING_VIEW = "workflowType=machine_learning"
 #: The params a pairing is grouped by, and the columns shown (with the seed).
-PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset.name")
+PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset")
 #: The headline metric of each experiment, and precision (the survey's other main number), as columns.
 HEADLINE_METRICS = tuple(dict.fromkeys([*(schema.HEADLINE[e] for e in schema.EXPERIMENTS), "precision"]))
 
