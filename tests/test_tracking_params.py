@@ -105,6 +105,8 @@ def test_saved_view_is_an_experiment_tag_the_ui_reads(client):
     assert "params.`detector`" in state["selectedColumns"] and "metrics.`pose_success`" in state["selectedColumns"]
     assert [k["groupByData"] for k in state["groupBy"]["groupByKeys"]] == [
         "detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset"]
+    assert [s["name"] for s in state["compareRunSections"]] == [
+        "Model metrics", "curves", "ci", "time", "sweep", "System metrics"] and state["isAccordionReordered"]
     save_pairings_view(client, experiment, "gtsweep.cell")  # unchanged: not rewritten
     assert json.loads(client.get_experiment(experiment).tags[f"mlflow.sharedViewState.{VIEW_KEY}"]) == envelope
     assert runs_url("http://h:5/", "7") == \
@@ -148,8 +150,9 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
                   f"params.`dataset.fingerprint` = '{outcome.dataset_fingerprint}'"):
         found = mlflow.search_runs(experiment_names=["gtsweep"], filter_string=query)
         assert set(found["tags.mlflow.runName"]) >= {"orb·nms·rot · seed=1"}, query
-    parent = MlflowClient(uri).get_run(tracker.parent_id).data.params
-    assert parent["dataset.n_synthetic"] == "1" and parent["selector.nms.params.n"] == "1000"
+    parent = MlflowClient(uri).get_run(tracker.parent_id).data
+    assert parent.params["dataset.n_synthetic"] == "1" and parent.params["selector.nms.params.n"] == "1000"
+    assert parent.metrics["sweep/cells"] == 1  # the sweep's totals in their own chart section
     (summary,) = outcome.summaries
     (read,) = summaries_from_mlflow(tracker.parent_id, uri)
     assert read["methods"]["detector"] == "orb" and read["metrics"]["repeatability_ci_low"] == pytest.approx(

@@ -6,7 +6,11 @@ quality metrics and counts stay plain (``pose_success``, ``n_matches``) and the 
 
 - ``ci/<m>_ci_low``, ``ci/<m>_ci_high``: a metric's 95 % interval (the names of results.csv after the prefix);
 - ``time/<t_...>``: the timings (schema unit ``s``);
-- ``curves/<m>_vs_<step>``: a series against a step key (``pose_success_vs_strength``, step = strength).
+- ``curves/<m>_vs_<step>``: a series against a step key (``pose_success_vs_strength``, step = strength);
+- ``sweep/<total>``: a sweep's own totals on its run (cells, cache hits, wall time).
+
+MLflow 3.17 puts a run's prefixed sections before "Model metrics" (its named sections sorted, then the unnamed
+one); the experiment's saved view (:mod:`gtsweep.tracking.views`) orders them as :data:`SECTIONS`.
 
 :func:`summary_name` turns any of these back into the name of a cell summary (runs logged before the prefixes,
 with plain names, read the same).
@@ -15,8 +19,10 @@ from __future__ import annotations
 
 from gtsweep.evaluation import schema
 
-INTERVAL, TIME, CURVES = "ci/", "time/", "curves/"
-PREFIXES = (INTERVAL, TIME, CURVES)
+INTERVAL, TIME, CURVES, SWEEP = "ci/", "time/", "curves/", "sweep/"
+PREFIXES = (INTERVAL, TIME, CURVES, SWEEP)
+#: MLflow's chart sections in the order a reader wants them: its name for unprefixed metrics first.
+SECTIONS = ("Model metrics", CURVES[:-1], INTERVAL[:-1], TIME[:-1], SWEEP[:-1], "System metrics")
 INTERVAL_SUFFIXES = ("_ci_low", "_ci_high")
 
 

@@ -26,7 +26,7 @@ from typing import Mapping
 
 from gtsweep.core.errors import BadInput
 from gtsweep.tracking.figures import FIGURE, strength_figure
-from gtsweep.tracking.metricnames import mlflow_name, summary_name
+from gtsweep.tracking.metricnames import SWEEP, mlflow_name, summary_name
 from gtsweep.tracking.params import (
     METHOD_TAG,
     batches,
@@ -216,7 +216,7 @@ class SweepTracker:
         totals = {"cells": len(outcome.summaries), "cache_hits": outcome.stats.cache_hits,
                   "cache_misses": outcome.stats.cache_misses, "wall_time_s": outcome.seconds,
                   "resumed_cells": outcome.resumed}
-        self.client.log_batch(self.parent_id, metrics=[Metric(k, float(v), now, 0) for k, v in totals.items()])
+        self.client.log_batch(self.parent_id, metrics=[Metric(SWEEP + k, float(v), now, 0) for k, v in totals.items()])
         if outcome.table is not None and Path(outcome.table).exists():
             self.client.log_artifact(self.parent_id, str(outcome.table))
         for path in artifacts:  # the report: survey tables and plots

@@ -9,7 +9,7 @@ A saved view of the runs page is an experiment tag ``mlflow.sharedViewState.<key
 (what the UI's "Views" menu saves; ``viewStateShareKey=<key>`` in the address opens it). gtsweep saves one,
 "gtsweep: pairings": the cell runs only, grouped by pairing (detector, selector, descriptor, matcher, estimator,
 transform and data set: each group averages its runs over the seeds), with the method, seed and data-set columns
-and the headline metrics.
+and the headline metrics; its charts start with the headline metrics (:data:`~gtsweep.tracking.metricnames.SECTIONS`).
 """
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import json
 import time
 
 from gtsweep.evaluation import schema
+from gtsweep.tracking.metricnames import SECTIONS
 
 VIEW_KEY = "gtsweep-pairings"
 VIEW_NAME = "gtsweep: pairings"
@@ -43,6 +44,12 @@ def pairings_state(cell_tag: str) -> dict:
         "groupBy": {"aggregateFunction": "average",
                     "groupByKeys": [{"mode": "param", "groupByData": p} for p in PAIRING]},
         "runsHiddenMode": "SHOW_ALL",
+        # the chart view: MLflow's generated charts, in sections ordered headline first (kept as given when
+        # isAccordionReordered; MLflow would sort the prefixed sections before its "Model metrics")
+        "compareRunCharts": [],
+        "compareRunSections": [{"uuid": f"gtsweep-section-{index}", "name": name, "display": True,
+                                "isReordered": False} for index, name in enumerate(SECTIONS)],
+        "isAccordionReordered": True,
     }
 
 
