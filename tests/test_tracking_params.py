@@ -20,7 +20,7 @@ from gtsweep.tracking.params import (
     options_by_name,
     parsed_config,
 )
-from gtsweep.tracking.tags import child_name, unique_name
+from gtsweep.tracking.tags import child_name, cluster_tags, unique_name
 from gtsweep.tracking.views import VIEW_KEY, pairings_state, runs_url, save_pairings_view
 
 
@@ -159,3 +159,10 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
         summary["metrics"]["repeatability_ci_low"])
     assert sorted(read["by_strength"]) == ["0.0", "90.0"]
     assert list(views_from_mlflow(tracker.parent_id, uri)) == [summary["key"]]
+
+
+def test_cluster_of_the_run_record_becomes_tags():
+    record = {"cells": 4, "cluster": {"backend": "ray", "address": "10.0.0.5:6379", "nodes": 2, "cpus": 8}}
+    assert cluster_tags(record) == {"gtsweep.cluster.backend": "ray", "gtsweep.cluster.address": "10.0.0.5:6379",
+                                    "gtsweep.cluster.nodes": "2", "gtsweep.cluster.cpus": "8"}
+    assert cluster_tags({"cells": 4}) == {} and cluster_tags({"cluster": {}}) == {}

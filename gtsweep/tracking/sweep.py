@@ -40,6 +40,7 @@ from gtsweep.tracking.store import git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (
     cell_names,
     child_name,
+    cluster_tags,
     model_development,
     ms,
     quiet_mlflow,
@@ -51,6 +52,7 @@ from gtsweep.tracking.views import runs_url, save_pairings_view
 PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
+RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.sweep)
 VIEWS_FILE = "views.csv"  # a child run's per-view rows (one name in every run: MLflow's compare page shows them)
 
 
@@ -210,13 +212,16 @@ class SweepTracker:
 
     def end(self, outcome, artifacts: list[Path] = ()) -> None:
         """Log the sweep's totals and files on the parent run and close it."""
-        from mlflow.entities import Metric
+        from mlflow.entities import Metric, RunTag
 
         now = int(time.time() * 1000)
+        record = self.output_dir / RUN_RECORD  # written by the sweep; its cluster (serial, or Ray's) becomes tags
+        tags = cluster_tags(json.loads(record.read_text())) if record.exists() else {}
         totals = {"cells": len(outcome.summaries), "cache_hits": outcome.stats.cache_hits,
                   "cache_misses": outcome.stats.cache_misses, "wall_time_s": outcome.seconds,
                   "resumed_cells": outcome.resumed}
-        self.client.log_batch(self.parent_id, metrics=[Metric(SWEEP + k, float(v), now, 0) for k, v in totals.items()])
+        self.client.log_batch(self.parent_id, metrics=[Metric(SWEEP + k, float(v), now, 0) for k, v in totals.items()],
+                              tags=[RunTag(k, v) for k, v in tags.items()])
         if outcome.table is not None and Path(outcome.table).exists():
             self.client.log_artifact(self.parent_id, str(outcome.table))
         for path in artifacts:  # the report: survey tables and plots

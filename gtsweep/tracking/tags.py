@@ -4,7 +4,7 @@ table's name column."""
 from __future__ import annotations
 
 import getpass
-from typing import Iterable
+from typing import Iterable, Mapping
 
 KIND_TAG = "mlflow.experimentKind"
 MODEL_DEVELOPMENT = "custom_model_development"
@@ -13,6 +13,7 @@ SOURCE_NAME = "python -m gtsweep"
 TRANSFORM_SHORT = {"incremental": "inc", "absolute": "abs", "rotation": "rot", "translation": "trans",
                    "noise": "noise", "gamma": "gamma"}
 SEPARATOR = "·"
+CLUSTER_TAG = "gtsweep.cluster."
 MAX_NAME = 40
 #: Overrides that say how a sweep ran rather than what it evaluated: left out of run names when others remain.
 PLUMBING = ("hydra.", "++hydra", "resume=", "dataset.", "runner.", "mlflow.", "cache.", "report.")
@@ -106,6 +107,13 @@ def unique_name(client, experiment_id: str, name: str) -> str:
 def child_name(cell_name: str, parent_name: str) -> str:
     """A cell run's name: the cell (``sift·brief·inc``), then its sweep's run (``seed=1``)."""
     return f"{cell_name} {SEPARATOR} {parent_name}" if parent_name else cell_name
+
+
+def cluster_tags(run_record: Mapping) -> dict[str, str]:
+    """Where a sweep's tasks ran, from its ``run.json`` (``"cluster"``: ``backend``, and for Ray its ``address``,
+    ``nodes``, ``cpus``), as the tags ``gtsweep.cluster.<key>``; none when the record has no cluster."""
+    cluster = run_record.get("cluster") or {}
+    return {CLUSTER_TAG + str(k): str(v) for k, v in cluster.items()} if isinstance(cluster, Mapping) else {}
 
 
 def ms(seconds: float | None) -> int | None:
