@@ -25,7 +25,6 @@ from gtsweep.report.labels import label  # noqa: E402
 from gtsweep.report.samples import Views, estimate  # noqa: E402
 
 
-
 def _series_name(methods: dict) -> str:
     parts = [label(methods["detector"])]
     if methods.get("descriptor"):
