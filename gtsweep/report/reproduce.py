@@ -87,7 +87,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
              f"select `dataset=survey`: 1288×964 views, capture physics), size `{size}`: "
              f"{' '.join(SIZES.get(size, []))} (counts per texture). Wall time on this machine "
              f"({os.cpu_count()} cores): "
-             f"{sum(r['wall_s'] for r in results) / 60:.0f} min for all presets. Cells read `ours ±half-width (paper)`: the half-width of our 95 % "
+             f"{sum(r['wall_s'] for r in results) / 60:.0f} min for all presets. Cells read `ours [low, high] (paper)`: the ends of our 95 % "
              "interval (Wilson for a success rate, a seeded bootstrap over images otherwise); NA = not applicable.",
              "", scale.line(), "",
              "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate | MLflow runs |",
@@ -103,7 +103,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
               "descriptors within one preset is computed once and not counted again); MLflow runs: the preset's "
               "parent run plus one child run per cell."]
     summaries, views, ties = {}, {}, []
-    tables = ["", "## The tables", "", "Each preset's table in the survey's layout, `ours ±half-width (paper)`, "
+    tables = ["", "## The tables", "", "Each preset's table in the survey's layout, `ours [low, high] (paper)`, "
               "with the entries tied with its best below it, and its plots."]
     for r in results:
         summaries[r["preset"]], views[r["preset"]] = load_summaries(r["output"]), load_views(r["output"])
@@ -111,7 +111,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
             if table.name != r["preset"] and not table.name.startswith(f"{r['preset']}_"):  # one per variant
                 continue  # e.g. the Table 2 sweep also fills Table 3; its own preset shows it
             annotate([table], load_scale(r["output"]))
-            tables += ["", table.markdown()]
+            tables += ["", table.markdown(note=True)]
             (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
             if table.ties is not None and table.ties.best:
                 ties.append(_ties_row(table))
