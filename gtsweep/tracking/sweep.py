@@ -156,7 +156,7 @@ class SweepTracker:
         now = ms(summary.get("ended")) or int(time.time() * 1000)
         # undefined values (e.g. ambiguity when no keypoint repeats) are logged as NaN: every metric is present
         values = summary.get("metrics") or {}
-        metrics = [Metric(mlflow_name(name), _number(values[name]), now, 0) for name in schema.ordered(values)]
+        metrics = [Metric(mlflow_name(key), _number(values[key]), now, 0) for key in schema.ordered(values)]
         metrics += self._step_metrics(summary, now)
         for step_key in schema.STEP_KEYS:
             if summary.get(f"by_{step_key}"):
