@@ -134,10 +134,12 @@ def test_report_by_texture_with_intervals_values_and_ties(tmp_path, capsys):
     assert "| pairing | transform | strength | pose_success (share) |" in strengths
     assert "| AKAZE-BRIEF [nms] | rotation | 0 deg | 1.00 [0.68, 1.00] |" in strengths
     assert "| AKAZE-BRIEF [nms] | rotation | 90 deg | 0.00 [0.00, 0.32] |" in strengths
-    # Table 6 with one transform: the cell's own interval, as in results.csv (Wilson 8/16: [0.280, 0.720])
+    # Table 6 with one transform, 8 images x 2 strengths: the interval is over the 8 images, not the 16 views
+    # (results.csv's Wilson 8/16 [0.280, 0.720] treats them as independent): every image alike (1 at strength 0,
+    # 0 at 90), so the design effect takes its bound, 8 trials, with t(7) = 2.365: Wilson [0.179, 0.821]
     table6 = pd.read_csv(run / "report" / "table6_pairings_values.csv")
     akaze = table6[(table6["row"] == "AKAZE") & (table6["metric"] == "pose_success")].iloc[0]
-    assert akaze["ours"] == 0.5 and akaze["ci_low"] == pytest.approx(0.280, abs=1e-3)
+    assert akaze["ours"] == 0.5 and akaze["ci_low"] == pytest.approx(0.179, abs=1e-3)
     assert (run / "report" / "by_texture" / "gravel" / "synthetic_by_strength.md").exists()
 
 
@@ -212,9 +214,10 @@ def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
     combine(tmp_path, plots=False)
     report = tmp_path / "combined" / "report"
     table4 = (report / "table4_incremental.md").read_text()
-    # SIFT-SIFT: (15 + 10) / 40 = 0.62; AKAZE-BRIEF 40/40: a bootstrap has nothing to resample, so Wilson with one
-    # trial per pair (20/20: [0.84, 1.00]); the 5 + 10 discordant pairs are all AKAZE's: not tied
-    assert "| AKAZE | 1.00 [0.84, 1.00] (0.85) |  |" in table4 and "| SIFT |  | 0.62 [" in table4
+    # SIFT-SIFT: (15 + 10) / 40 = 0.62; AKAZE-BRIEF 40/40 over 20 pairs x 2 repeats: every pair alike, so the
+    # design effect takes its bound, one trial per pair, with t(19) = 2.093 (20/20: [0.82, 1.00]); the 5 + 10
+    # discordant pairs are all AKAZE's: not tied
+    assert "| AKAZE | 1.00 [0.82, 1.00] (0.85) |  |" in table4 and "| SIFT |  | 0.62 [" in table4
     assert "none tied with it" in table4
     values = pd.read_csv(report / "table6_pairings_values.csv")
     success = values[values["metric"] == "pose_success"].iloc[0]
