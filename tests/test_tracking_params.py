@@ -133,7 +133,7 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
     from omegaconf import OmegaConf
 
     from gtsweep.orchestration.cache import library_versions
-    from gtsweep.orchestration.sweep import run_sweep
+    from gtsweep.orchestration.skeleton import run_sweep
     from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow, views_from_mlflow
 
     monkeypatch.chdir(tmp_path)

@@ -52,7 +52,7 @@ from gtsweep.tracking.views import runs_url, save_pairings_view
 PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
-RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.sweep)
+RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.skeleton)
 VIEWS_FILE = "views.csv"  # a child run's per-view rows (one name in every run: MLflow's compare page shows them)
 
 

@@ -26,7 +26,7 @@ TRAINING_VIEW = "workflowType=machine_learning"
 #: The params a pairing is grouped by, and the columns shown (with the seed).
 PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset")
 #: The headline metric of each experiment, and precision (the survey's other main number), as columns.
-HEADLINE_METRICS = tuple(dict.fromkeys([*(schema.HEADLINE[e] for e in schema.EXPERIMENTS), "precision"]))
+HEADLINE_METRICS = tuple(dict.fromkeys([*(schema.HEADLINE[e] for e in schema.EXPERIMENT_ROWS), "precision"]))
 
 
 def _column(kind: str, name: str) -> str:
