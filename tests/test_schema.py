@@ -146,7 +146,7 @@ def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monke
     client = mlflow.tracking.MlflowClient(uri)
     (child,) = client.search_runs([tracker.experiment_id], f"tags.mlflow.parentRunId = '{tracker.parent_id}'")
     assert child.data.metrics["match_share"] == pytest.approx(expected)
-    assert sorted(m.step for m in client.get_metric_history(child.info.run_id, "match_share_vs_strength")) == [0, 90]
+    assert sorted(m.step for m in client.get_metric_history(child.info.run_id, "curves/match_share_vs_strength")) == [0, 90]
 
     for source, summaries in (("files", outcome.summaries), ("mlflow", summaries_from_mlflow(tracker.parent_id, uri))):
         _, files = write_report(summaries, tmp_path / source, plots=False)

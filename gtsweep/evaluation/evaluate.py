@@ -86,7 +86,7 @@ def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor
     :class:`~gtsweep.evaluation.reuse.DescribeOnce`, so images seen before (a reference under several strengths,
     several reference counts) are not described again.
     """
-    memo = memo or DescribeOnce(descriptor, detector, descriptor_params)
+    memo = memo or DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
     if experiment.get("test_count") is not None:
         test_kps = test_kps[:experiment["test_count"]]
     ref_kept, ref_desc, t_ref = memo.describe(view.reference, ref_kps, reference_count)
@@ -198,7 +198,8 @@ def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: 
     counts = experiment.get("reference_counts") or [None]
     norm, iou = DESCRIPTORS.get(descriptor).norm, experiment.get("iou_threshold", 0.5)
     results: dict[Combination, list[dict] | Exception] = {(m, e): [] for m in matchers for e in estimators}
-    memo = DescribeOnce(descriptor, detector, descriptor_params)  # every image of the shard described once
+    # every image of the shard described once
+    memo = DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
     for (meta, view), (ref, test), det_row in zip(views(shard, transform, transform_cfg, seed), keypoints,
                                                    detection_rows):
         view_seed = stable_seed(seed, meta["view"])

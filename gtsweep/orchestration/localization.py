@@ -166,7 +166,8 @@ def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, 
         method = {"detector": detector, "detector_params": grid.detectors[detector]["params"],
                   "selector": selector, "selector_params": grid.selectors[selector]["params"],
                   "descriptor": descriptor,
-                  "descriptor_params": descriptor_params(grid.descriptors[descriptor], detector)}
+                  "descriptor_params": descriptor_params(grid.descriptors[descriptor], detector),
+                  "foreign_scale": grid.experiment.get("foreign_scale")}
         estimators = {c.estimator: grid.estimators[c.estimator]["params"] for c in members}
         job = (detector, selector, descriptor, matcher)
         tracker[job] = {"cells": members, "remaining": 0, "rows": defaultdict(list), "failure": None,

@@ -66,7 +66,7 @@ def _detect_describe(cache: KeypointCache, image, method: dict):
     keypoints, _, t_detect = detect_cached(cache, image, None, method["detector"], method["detector_params"],
                                            method["selector"], method["selector_params"])
     kept, descriptors, t_describe = describe_timed(image, keypoints, method["descriptor"], method["detector"],
-                                                   **method["descriptor_params"])
+                                                   method.get("foreign_scale"), **method["descriptor_params"])
     return keypoints, kept, descriptors, t_detect, t_describe
 
 
