@@ -77,3 +77,21 @@ def test_gtsweeps_reading_of_hydras_flags_matches_hydras_parser():
     theirs, ours = described(get_args_parser()), described(search.hydra_flags())
     theirs[("--version",)] = ours[("--version",)]  # Hydra prints its version; gtsweep only needs to skip the flag
     assert ours == theirs
+
+
+def test_a_config_planted_in_the_working_directorys_tuned_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """Issue 28's planted preset is not silently ignored: the command stops before any work and names the file;
+    a tuned method file (<group>/tuned/<name>.yaml) alone is fine."""
+    from gtsweep.core.searchpath import stray_tuned_files
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tuned" / "detector" / "tuned").mkdir(parents=True)
+    (tmp_path / "tuned" / "detector" / "tuned" / "sift.yaml").write_text("# @package detector\nsift: {}\n")
+    assert stray_tuned_files("tuned") == []
+    (tmp_path / "tuned" / "sweeps").mkdir()
+    (tmp_path / "tuned" / "sweeps" / "smoke.yaml").write_text("# @package _global_\n")
+    (tmp_path / "tuned" / "detector" / "planted.yaml").write_text("factory: subprocess.Popen\n")
+    assert stray_tuned_files("tuned") == ["detector/planted.yaml", "sweeps/smoke.yaml"]
+    err = one_line_error(["sweeps=smoke", "runner.backend=serial"], capsys)
+    assert err.startswith("gtsweep: error: tuned/detector/planted.yaml is not a tuned method file")
+    assert not (tmp_path / "outputs").exists()

@@ -85,13 +85,14 @@ def test_the_planted_detector_of_issue_28_named_explicitly_is_one_line(tmp_path)
 
 @pytest.mark.slow
 def test_the_command_of_issue_28_runs_no_planted_code(tmp_path):
-    """./tuned is no longer searched for presets (the README's smoke runs), and were the planted file found, its
-    factory would be refused."""
+    """The issue's command: the planted ./tuned files are refused in one line before any work (./tuned serves only
+    tuned method files, and were the planted file found, its factory would be refused too)."""
     _plant_issue_28(tmp_path)
     result = run_cli(["sweeps=smoke", "runner.backend=serial", "report.plots=false"], tmp_path)
     assert not (tmp_path / "PWNED").exists()
-    assert "Traceback" not in result.stderr
-    assert result.returncode == 0 or (result.returncode == 2 and "outside the allowed modules" in result.stderr)
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert "tuned/detector/planted.yaml is not a tuned method file" in result.stderr
+    assert not (tmp_path / "outputs").exists()
 
 
 def test_an_explicit_tuned_file_with_a_foreign_factory_is_refused(tmp_path):

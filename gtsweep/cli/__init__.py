@@ -14,10 +14,19 @@ from gtsweep.cli.overrides import fail, place, prepare, resume_args
 from gtsweep.cli.search import parse
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-from gtsweep.core.searchpath import ignore_missing_dir, register_sources
+from gtsweep.core.searchpath import ignore_missing_dir, register_sources, stray_tuned_files
 
 #: Flags that only print (help, config): no output directory needed.
 PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")
+
+
+def refuse_stray_tuned_files() -> None:
+    """A YAML file in ``./tuned`` that is not a tuned method file (issue 28's planted preset): one line, exit 2."""
+    stray = stray_tuned_files(DEFAULT_TUNED_ROOT)
+    if stray:
+        raise GtsweepError(f"{DEFAULT_TUNED_ROOT}/{stray[0]} is not a tuned method file: ./{DEFAULT_TUNED_ROOT} holds "
+                           f"only <group>/tuned/<name>.yaml (written by experiment=optimize) and gtsweep reads "
+                           f"nothing else from it; move presets and methods to a --config-dir of yours")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -27,6 +36,7 @@ def main(argv: list[str] | None = None) -> None:
     invocation = parse(args)
     if not invocation.passthrough:
         try:
+            refuse_stray_tuned_files()
             args = prepare(args)
             args = place(args, resume_args(args, invocation.multirun))
             if not any(a in PRINT_ONLY for a in args):

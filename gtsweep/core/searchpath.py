@@ -69,6 +69,21 @@ class TunedMethods(ConfigSource):
         return sorted(set(found))
 
 
+def stray_tuned_files(root: str | os.PathLike) -> list[str]:
+    """The YAML files under ``root`` (the working directory's ``./tuned``) that are not tuned method files
+    (``<method group>/tuned/<name>.yaml``): Hydra never sees them, and a config planted there (a preset, a method)
+    is refused by the command line rather than silently ignored."""
+    found = []
+    for folder, _, names in os.walk(root):
+        for name in names:
+            if name.endswith((".yaml", ".yml")):
+                parts = os.path.relpath(os.path.join(folder, name), root).split(os.sep)
+                if not (len(parts) == 3 and parts[0] in METHOD_GROUPS and parts[1] == "tuned"
+                        and name.endswith(".yaml")):
+                    found.append("/".join(parts))
+    return sorted(found)
+
+
 def register_sources() -> None:
     """Make the ``tuned://`` scheme known to Hydra in this process (the CLI's and every launcher worker's)."""
     Plugins.instance().register(TunedMethods)
