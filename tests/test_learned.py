@@ -146,6 +146,16 @@ def test_lightglue_matches_a_shifted_view_correctly(views, name):
     np.testing.assert_array_equal(matches, again)
 
 
+def test_lightglue_with_an_empty_side_gives_no_match():
+    matcher = MATCHERS.get("lightglue").build({})
+    empty, some = np.zeros((0, 128), np.float32), np.ones((5, 128), np.float32) / np.sqrt(128)
+    keypoints = np.zeros((5, 7))
+    for reference, test in ((empty, some), (some, empty)):
+        matches = match_sides(matcher, "l2", reference, test, Side(keypoints[:len(reference)], (50, 60), "disk"),
+                              Side(keypoints[:len(test)], (50, 60), "disk"))
+        assert matches.shape == (0, 2) and matches.dtype == np.int64
+
+
 def test_lightglue_is_not_applicable_to_other_descriptors_nor_to_maps():
     matcher = MATCHERS.get("lightglue").build({})
     for descriptor in ("sift", "orb", "surf", "teblid"):
