@@ -42,20 +42,20 @@ ui: $(STAMP)
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port 5000
 
 # Detector parameters for the table presets (conf/detector/tuned/, shipped in the package): the studies behind the
-# committed files, about 40 minutes on 2 cores (MSD alone ~17). A study already in .gtsweep_cache/optuna.db is
+# committed files; each study stops when its best has stopped moving (no gain > 0.005 in 20 trials, at most 200:
+# gtsweep/optimize/stopping.py), hours on 2 cores at survey size. A study already in .gtsweep_cache/optuna.db is
 # continued. Without experiment.tuned_root=conf, experiment=optimize writes to ./tuned/ (the user's own).
 # Tuning uses the survey-size data set's optimisation views only (their own floor band; no other view is rendered).
 TUNE := $(BIN)/python -m gtsweep experiment=optimize experiment.tuned_root=conf dataset=survey \
 	dataset.n_synthetic=0 dataset.n_incremental=0 dataset.n_absolute=0
 tune: $(STAMP)
-	$(TUNE) 'detector=[agast,akaze,brisk,gftt,harris,kaze,msd,orb,sift,surf,xfeat]' experiment.n_trials=10
-	$(TUNE) 'detector=[censure,fast,mser]' experiment.n_trials=30
-	$(TUNE) 'detector=[harris_laplace]' experiment.n_trials=24
+	$(TUNE) 'detector=[agast,akaze,brisk,censure,fast,gftt,harris,harris_laplace,kaze,msd,mser,orb,sift,surf,xfeat]' \
+		experiment.n_trials=200 experiment.patience=20
 
 # The long run: every survey table preset on the survey-size data set (dataset=survey, reduced counts: about an
 # hour), docs/REPRODUCTION.md. --size presets / full: the presets' counts / the survey's protocol (hours).
 reproduce: $(STAMP)
-	$(BIN)/python -m gtsweep.report.reproduce --size hour
+	$(BIN)/python -m gtsweep.report.reproduce --size decide
 
 clean:
 	rm -rf .gtsweep_cache outputs multirun

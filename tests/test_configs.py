@@ -153,7 +153,10 @@ def test_shell_completion_installs():
 
 def test_pyproject_ships_every_package_and_the_configs():
     setuptools = tomllib.loads((PROJECT_DIR / "pyproject.toml").read_text())["tool"]["setuptools"]
-    packages = {".".join(p.parent.relative_to(PACKAGE_DIR.parent).parts) for p in PACKAGE_DIR.rglob("__init__.py")}
-    assert packages | {"gtsweep.conf", "gtsweep.conf.sweeps"} == set(setuptools["packages"])
+    # every folder, code or data only (setuptools warns "Package would be ignored" about an unlisted data folder)
+    folders = lambda root, name: {".".join((name, *d.relative_to(root).parts)) for d in [root, *root.rglob("*")]
+                                  if d.is_dir() and d.name != "__pycache__"}
+    packages = folders(PACKAGE_DIR, "gtsweep") | folders(CONF_DIR, "gtsweep.conf")
+    assert packages | {"gtsweep.conf.sweeps"} == set(setuptools["packages"])
     assert setuptools["package-dir"] == {"gtsweep.conf": "conf", "gtsweep.conf.sweeps": "sweeps"}
     assert CONF_DIR == PROJECT_DIR / "conf" and (CONF_DIR / "__init__.py").exists()

@@ -100,8 +100,10 @@ def test_pair_layout_hits_its_targets():
     for reference, test, target in layout.pair_views(rng, 20, plan, (640, 480), 0.02, law):
         assert overlap(reference, test, (480, 640)) == pytest.approx(target, abs=1e-4)
         assert rotation_deg(reference, test) <= law["rotation_max"] + 1e-9
-    u = layout.stratified(rng, 1000)
-    assert np.all(np.sort(u) // 0.001 == np.arange(1000))  # one draw per stratum
+    u = layout.stratified(rng, 1024)
+    assert np.all(np.sort(u) // (1 / 1024) == np.arange(1024))  # one draw per stratum at a power of two
+    assert np.array_equal(layout.stratified(np.random.default_rng(5), 6),
+                          layout.stratified(np.random.default_rng(5), 12)[:6])  # a prefix of a larger count
     assert layout.rotation_targets(rng, 2000, synthetic.PAIR_LAWS["absolute"]).__abs__().mean() == \
         pytest.approx(120, abs=1)
     with pytest.raises(BadInput, match="too small"):

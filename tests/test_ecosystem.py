@@ -70,7 +70,8 @@ def test_a_multirun_combines_seeds_as_repeats(tmp_path):
     summary = pd.read_csv(tmp_path / "combined" / "summary.csv").iloc[0]
     assert summary["n"] == 2 and summary["pose_success_mean"] == pytest.approx(0.5)
     assert summary["pose_success_std"] == pytest.approx(0.1414, abs=1e-4)
-    assert "0.500 ± 0.141 (2)" in (tmp_path / "combined" / "summary.md").read_text()
+    summary = (tmp_path / "combined" / "summary.md").read_text()
+    assert "0.500 ± 0.141 (2)" in summary and "pose_success (share): mean ± std (n) |" in summary
     table = tmp_path / "combined" / "report" / "table4_incremental.md"
     assert table in files and "| ORB | 0.50 (0.70) |" in table.read_text()  # the mean, beside the paper's
 

@@ -184,6 +184,31 @@ def test_microgps_database_is_the_map_and_test_lists_are_unposed_queries(tmp_pat
     assert data.sizes("carpet") == [8] and data.px_per_mm == pytest.approx(6.25)
 
 
+def test_localization_on_a_real_data_set_maps_every_floor_found(tmp_path):
+    """``experiment=localization dataset=microgps dataset.root=...``: every texture folder is a map (the embedded
+    data set's three floor names are not asked of a real one); ``dataset.textures`` still picks."""
+    from dataset_fixtures import microgps
+    from sweep_helpers import compose_config
+
+    from gtsweep.datasets.mapping import EMBEDDED_TEXTURES, embedded_textures
+
+    microgps(tmp_path, "cs4_hallway_long_packed", n=6)
+    microgps(tmp_path, "fc_hallway_long_packed", n=5)
+    cfg = OmegaConf.to_container(compose_config(["experiment=localization", "dataset=microgps",
+                                                 f"dataset.root={tmp_path}"]), resolve=True)
+    data = load_localization(cfg["dataset"], cfg["experiment"])
+    assert sorted(data.maps) == ["cs4_hallway_long_packed", "fc_hallway_long_packed"]
+    # 4 queries held out of each: 6 - 4 = 2 and 5 - 3 = 2 mapping images (linspace picks of 5 images repeat)
+    assert [len(data.maps[t]) for t in sorted(data.maps)] == [2, 2]
+    picked = OmegaConf.to_container(compose_config(["experiment=localization", "dataset=microgps",
+                                                    f"dataset.root={tmp_path}",
+                                                    "dataset.textures=[fc_hallway_long_packed]"]), resolve=True)
+    assert list(load_localization(picked["dataset"], picked["experiment"]).maps) == ["fc_hallway_long_packed"]
+    # the embedded data set keeps its three floors unless experiment.textures names others
+    assert embedded_textures(check({})) == list(EMBEDDED_TEXTURES) == ["fine_asphalt", "concrete", "wood"]
+    assert embedded_textures(check({"textures": "carpet"})) == ["carpet"]
+
+
 def test_run_writes_per_query_rows_and_reuses_the_cached_map(tmp_path):
     from gtsweep.orchestration.localization import run_localization
 

@@ -1,6 +1,8 @@
 """Survey tables rebuilt from small sweeps: layout (rows, columns, NA cells) and the paper's numbers beside ours."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -55,17 +57,20 @@ def test_selector_and_detector_tables(summaries):
     tables = _tables(summaries)
     selectors = tables["table2_selectors"].cells
     assert list(selectors.index) == ["SIFT", "CenSurE"]
-    assert list(selectors.columns) == ["#KPs before selection", "Rep. none", "Rep. nms", "Rep. anms",
-                                       "Rep. bucketing"]
-    assert selectors.loc["SIFT", "Rep. bucketing"] == "NA (0.77)"  # not run here; the paper's value still shown
+    assert list(selectors.columns) == ["#KPs before selection (keypoints per view)", "Rep. none (share)",
+                                       "Rep. nms (share)", "Rep. anms (share)", "Rep. bucketing (share)"]
+    assert selectors.loc["SIFT", "Rep. bucketing (share)"] == "NA (0.77)"  # not run; the paper's value still shown
     detectors = tables["table3_detectors"].cells
     assert set(detectors.index) == {"SIFT", "CenSurE"} and set(detectors["selector"]) <= {"NMS", "ANMS"}
+    assert list(detectors.columns) == ["selector", "< 100 KPs (share of views)", "repeatability (share)",
+                                       "ambiguity (matches)", "time (s)"]
 
 
 def test_pairings_and_reference_count_tables(summaries):
     tables = _tables(summaries)
-    assert list(tables["table6_pairings"].cells.columns) == ["descriptor", "pose success", "#correct matches",
-                                                             "precision"]
+    assert list(tables["table6_pairings"].cells.columns) == ["descriptor", "pose success (share)",
+                                                             "#correct matches (per view)", "precision (share)"]
+    assert "pose success (share of pairs)" in tables["table4_incremental"].title
     table7 = tables["table7_reference_features"].cells
     assert list(table7.columns) == ["descriptor", "10", "100"]
     assert table7.loc["CenSurE", "10"].endswith("(0.00)") and table7.loc["CenSurE", "100"].endswith("(0.73)")
@@ -87,10 +92,12 @@ def test_fmt():
 
 
 def test_fmt_with_interval():
-    # ours ± half-width of [0.80, 0.90] (paper)
-    assert fmt(0.85, 0.93, 2, 0.80, 0.90) == "0.85 ±0.05 (0.93)"
-    assert fmt(287.0, 534, 0, 155.0, 419.0) == "287 ±132 (534)"
+    # ours [low, high] (paper): the ends as they are, not a half-width
+    assert fmt(0.85, 0.93, 2, 0.80, 0.90) == "0.85 [0.80, 0.90] (0.93)"
+    assert fmt(287.0, 534, 0, 155.0, 419.0) == "287 [155, 419] (534)"
     assert fmt(float("nan"), 0.9, 2, 0.1, 0.2) == "NA (0.90)"
+    # a Wilson interval of 10/10 is [0.72, 1.00]: "1.00 ±0.14" would read as values up to 1.14
+    assert fmt(1.0, None, 2, 0.7225, 1.0) == "1.00 [0.72, 1.00]"
 
 
 def _fake_run(directory):
@@ -111,7 +118,7 @@ def test_report_by_texture_with_intervals_values_and_ties(tmp_path, capsys):
     shown = capsys.readouterr().out
     # SIFT-SIFT 15/20 (Wilson [0.531, 0.888]), AKAZE-BRIEF 20/20 ([0.839, 1]); 5 discordant pairs: McNemar p =
     # 2/32 = 0.0625 >= 0.05, so SIFT-SIFT is tied with the best
-    assert "| SIFT |  | 0.75 ±0.18 (0.84) |" in shown and "| AKAZE | 1.00 ±0.08 (0.85) |  |" in shown
+    assert "| SIFT |  | 0.75 [0.53, 0.89] (0.84) |" in shown and "| AKAZE | 1.00 [0.84, 1.00] (0.85) |  |" in shown
     assert "best pose_success: AKAZE-BRIEF 1.00; 1 tied with it (SIFT-SIFT)" in shown
     values = pd.read_csv(run / "report" / "table4_incremental_values.csv")
     sift = values[(values["row"] == "SIFT") & (values["column"] == "SIFT")].iloc[0]
@@ -119,16 +126,20 @@ def test_report_by_texture_with_intervals_values_and_ties(tmp_path, capsys):
     # per texture: carpet has SIFT-SIFT 10/10 (Wilson [0.722, 1]), gravel 5/10 ([0.237, 0.763])
     carpet = (run / "report" / "by_texture" / "carpet" / "table4_incremental.md").read_text()
     gravel = (run / "report" / "by_texture" / "gravel" / "table4_incremental.md").read_text()
-    assert "texture carpet" in carpet and "| SIFT |  | 1.00 ±0.14 (0.84) |" in carpet
-    assert "| SIFT |  | 0.50 ±0.26 (0.84) |" in gravel
-    # per transform and strength: AKAZE-BRIEF 8/8 at 0, 0/8 at 90 on rotation (Wilson 8/8: [0.676, 1])
+    assert "texture carpet" in carpet and "| SIFT |  | 1.00 [0.72, 1.00] (0.84) |" in carpet
+    assert "| SIFT |  | 0.50 [0.24, 0.76] (0.84) |" in gravel
+    # per transform and strength: AKAZE-BRIEF 8/8 at 0, 0/8 at 90 on rotation (Wilson 8/8: [0.676, 1], 0/8:
+    # [0, 0.324])
     strengths = (run / "report" / "synthetic_by_strength.md").read_text()
-    assert "| AKAZE-BRIEF [nms] | rotation | 0 | 1.00 ±0.16 |" in strengths
-    assert "| AKAZE-BRIEF [nms] | rotation | 90 | 0.00 ±0.16 |" in strengths
-    # Table 6 with one transform: the cell's own interval, as in results.csv (Wilson 8/16: [0.280, 0.720])
+    assert "| pairing | transform | strength | pose_success (share) |" in strengths
+    assert "| AKAZE-BRIEF [nms] | rotation | 0 deg | 1.00 [0.68, 1.00] |" in strengths
+    assert "| AKAZE-BRIEF [nms] | rotation | 90 deg | 0.00 [0.00, 0.32] |" in strengths
+    # Table 6 with one transform, 8 images x 2 strengths: the interval is over the 8 images, not the 16 views
+    # (results.csv's Wilson 8/16 [0.280, 0.720] treats them as independent): every image alike (1 at strength 0,
+    # 0 at 90), so the design effect takes its bound, 8 trials, with t(7) = 2.365: Wilson [0.179, 0.821]
     table6 = pd.read_csv(run / "report" / "table6_pairings_values.csv")
     akaze = table6[(table6["row"] == "AKAZE") & (table6["metric"] == "pose_success")].iloc[0]
-    assert akaze["ours"] == 0.5 and akaze["ci_low"] == pytest.approx(0.280, abs=1e-3)
+    assert akaze["ours"] == 0.5 and akaze["ci_low"] == pytest.approx(0.179, abs=1e-3)
     assert (run / "report" / "by_texture" / "gravel" / "synthetic_by_strength.md").exists()
 
 
@@ -174,7 +185,9 @@ def test_same_seed_same_intervals_on_serial_and_ray_and_from_mlflow(tmp_path, mo
     capsys.readouterr()
     assert main([tracker.parent_id, "--mlflow", "--tracking-uri", uri, "--out", str(tmp_path / "from_mlflow"),
                  "--no-plots"]) == 0
-    assert " ±" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert re.search(r"\d\.\d\d \[\d\.\d\d, \d\.\d\d\]", printed.out)  # ours [low, high]
+    assert "Downloading artifacts" not in printed.err  # no progress bar per downloaded file
     for table in ("table4_incremental_values.csv", "table6_pairings_values.csv"):
         ours = pd.read_csv(tmp_path / "from_mlflow" / table)
         theirs = pd.read_csv(tmp_path / "serial" / "report" / table)
@@ -201,9 +214,10 @@ def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
     combine(tmp_path, plots=False)
     report = tmp_path / "combined" / "report"
     table4 = (report / "table4_incremental.md").read_text()
-    # SIFT-SIFT: (15 + 10) / 40 = 0.62; AKAZE-BRIEF 40/40: a bootstrap has nothing to resample, so Wilson with one
-    # trial per pair (20/20: half-width 0.08); the 5 + 10 discordant pairs are all AKAZE's: not tied
-    assert "| AKAZE | 1.00 ±0.08 (0.85) |  |" in table4 and "| SIFT |  | 0.62 ±" in table4
+    # SIFT-SIFT: (15 + 10) / 40 = 0.62; AKAZE-BRIEF 40/40 over 20 pairs x 2 repeats: every pair alike, so the
+    # design effect takes its bound, one trial per pair, with t(19) = 2.093 (20/20: [0.82, 1.00]); the 5 + 10
+    # discordant pairs are all AKAZE's: not tied
+    assert "| AKAZE | 1.00 [0.82, 1.00] (0.85) |  |" in table4 and "| SIFT |  | 0.62 [" in table4
     assert "none tied with it" in table4
     values = pd.read_csv(report / "table6_pairings_values.csv")
     success = values[values["metric"] == "pose_success"].iloc[0]
@@ -228,3 +242,27 @@ def test_plots_per_texture_with_interval_bands(tmp_path):
     # AKAZE-BRIEF on rotation: 8/8 at 0 (Wilson [0.676, 1]), 0/8 at 90 ([0, 0.324])
     lows, highs = _band(cell, "strength", "pose_success", [0.0, 90.0], load_views(run))
     assert lows == pytest.approx([0.676, 0.0], abs=1e-3) and highs == pytest.approx([1.0, 0.324], abs=1e-3)
+
+
+def test_heatmap_cells_show_value_interval_and_na_and_curves_count_views_per_point(tmp_path, monkeypatch):
+    from gtsweep.report import plots
+    from gtsweep.report.samples import load_views
+    from gtsweep.report.tables import load_summaries
+
+    run = _fake_run(tmp_path / "run")
+    summaries, views = load_summaries(run), load_views(run)
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    plots.plot_success_heatmaps(summaries, tmp_path)
+    (figure,) = figures
+    ax = figure.axes[0]
+    texts = {t.get_text() for t in ax.texts}
+    # AKAZE-BRIEF 20/20 (Wilson [0.839, 1]), SIFT-SIFT 15/20 ([0.531, 0.888]); AKAZE-SIFT, SIFT-BRIEF not run
+    assert texts == {"1.00\n[0.84, 1.00]", "0.75\n[0.53, 0.89]", "NA"}
+    assert ax.get_title() == "Pose success, incremental pairs\n20 pairs per cell; [95 % interval]; NA: not applicable"
+    width, height = figure.get_size_inches()  # sized to its 2 x 2 cells
+    assert width == pytest.approx(2.6 + 2 * 1.25) and height == pytest.approx(1.9 + 2 * 0.62)
+    # rotation: 8 images, each at 0 and 90 deg: 16 views per cell, 8 behind each point (rows or, without, counts)
+    rotation = [s for s in summaries if s["methods"]["transform"] == "rotation"]
+    assert plots._views(rotation) == "16"
+    assert plots._per_point(rotation, "strength", views) == plots._per_point(rotation, "strength", None) == "8"

@@ -152,5 +152,5 @@ def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monke
         _, files = write_report(summaries, tmp_path / source, plots=False)
         assert {"cells.md", "cells.csv", "cells.tex"} <= {f.name for f in files}
         cells = pd.read_csv(tmp_path / source / "cells.csv")
-        assert cells.loc[0, "match_share"] == float(f"{expected:.2f}"), source
-        assert "match_share" in (tmp_path / source / "cells.md").read_text()
+        assert cells.loc[0, "match_share (share)"] == float(f"{expected:.2f}"), source  # header: name (unit)
+        assert "match_share (share)" in (tmp_path / source / "cells.md").read_text()

@@ -15,8 +15,10 @@ from gtsweep.evaluation.statistics import (
     clustered_mean,
     correlation_difference,
     correlation_interval,
+    holm,
     mcnemar_exact,
     paired_difference,
+    spent_alpha,
     verdict,
     wilson_interval,
 )
@@ -78,19 +80,44 @@ def test_clustered_mean_averages_strata_of_pooled_clusters():
     # the table's value is the mean over transforms, (1.0 + 0.25) / 2 = 0.625
     sums, counts = np.array([[1.0, 1.0], [1.0, 0.0]]), np.array([[1.0, 2.0], [1.0, 2.0]])
     assert clustered_mean(sums, counts) == pytest.approx(0.625)
-    # resampling images: {1,1} -> (1 + 0.5)/2 = 0.75, {2,2} -> (1 + 0)/2 = 0.5, mixed -> 0.625: interval [0.5, 0.75]
-    assert clustered_interval(sums, counts) == pytest.approx((0.5, 0.75))
-    assert clustered_interval(sums, counts, seed=4) == clustered_interval(sums, counts, seed=4)
+    # influence: rotation contributes 0 (both 1/1), noise (1 - 0.25*2)/4 = +0.125 and (0 - 0.5)/4 = -0.125, halved
+    # over the 2 strata: +-0.0625; SE = sqrt(2/1 * 2 * 0.0625^2) = 0.125; t(1) = 12.706: 0.625 +- 1.588
+    low, high = clustered_interval(sums, counts)
+    assert (low, high) == pytest.approx((0.625 - 12.7062 * 0.125, 0.625 + 12.7062 * 0.125), abs=1e-3)
 
 
-def test_clustered_difference_swaps_whole_images():
-    # one stratum, 5 images with one view each: the same exact sign-flip test as paired_difference (p = 8/32)
+def test_rate_interval_is_a_design_effect_wilson_for_every_rate():
+    # 6 images x 10 views, every view succeeds: no spread to estimate a design effect, so its bound, 6 trials,
+    # with t(5) = 2.571: Wilson(6/6) low = 1 / (1 + 2.571^2 / 6) = 0.476
+    ones = np.full((6, 1), 10.0)
+    assert clustered_interval(ones, ones, rate=True) == pytest.approx((0.4758, 1.0), abs=1e-3)
+    assert clustered_interval(0 * ones, ones, rate=True) == pytest.approx((0.0, 1 - 0.4758), abs=1e-3)
+    # one view per pair (independent trials): Wilson's own interval
+    assert clustered_interval(np.array([[1.0]] * 8 + [[0.0]] * 2), np.ones((10, 1)), rate=True) == \
+        pytest.approx(wilson_interval(8, 10))
+
+
+def test_clustered_difference_is_a_paired_t_over_images():
+    # one stratum, 5 images with one view each: the paired t of the differences 0.1, 0, 0.2, 0, 0.3
     a, b = np.array([[0.5], [0.7], [0.9], [0.6], [0.8]]), np.array([[0.4], [0.7], [0.7], [0.6], [0.5]])
     ones = np.ones((5, 1))
     result = clustered_difference(a, ones, b, ones)
-    assert result.difference == pytest.approx(0.12) and result.p_value == pytest.approx(0.25) and result.n == 5
+    expected = stats.ttest_1samp([0.1, 0, 0.2, 0, 0.3], 0.0)
+    assert result.difference == pytest.approx(0.12) and result.p_value == pytest.approx(expected.pvalue)
+    assert result.n == 5 and result.df == 4
     tied = clustered_difference(a, ones, a, ones)
-    assert tied.p_value == 1.0 and verdict(tied) == INCONCLUSIVE
+    assert tied.p_value == 1.0 and tied.difference == 0.0
+
+
+def test_holm_by_hand():
+    # p sorted 0.01, 0.02, 0.04: x3, x2, x1 = 0.03, 0.04, 0.04 (monotone), in the original order
+    assert list(holm([0.04, 0.01, 0.02])) == pytest.approx([0.04, 0.03, 0.04])
+    assert list(holm([0.5, 0.9])) == pytest.approx([1.0, 1.0])
+
+
+def test_pocock_spending_spends_alpha_by_the_end():
+    assert spent_alpha(0.05, 0.0) == 0.0 and spent_alpha(0.05, 1.0) == pytest.approx(0.05)
+    assert spent_alpha(0.05, 0.06) == pytest.approx(0.05 * math.log(1 + (math.e - 1) * 0.06))
 
 
 def test_correlation_difference_is_judged_by_its_interval():

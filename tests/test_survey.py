@@ -197,3 +197,19 @@ def test_day_effects_and_the_frame_api():
     image = capture.random_frame(floor, np.random.default_rng(0), capture.FRAME_DEFAULTS, 6.25)
     again = capture.random_frame(floor, np.random.default_rng(0), capture.FRAME_DEFAULTS, 6.25)
     assert image.dtype == np.uint8 and image.shape == floor.shape and np.array_equal(image, again)
+
+
+def test_a_smaller_data_set_is_a_prefix_of_a_larger_one():
+    """The sequential reproduction adds images and pairs per round: the views of n = 6 are the first views of
+    n = 12 (same poses, capture and another-day parameters), so the keypoint cache serves them again."""
+    small_counts, large_counts = (survey_options(n_synthetic=n, n_incremental=n, n_absolute=n) for n in (6, 12))
+    floor = layout.plan_floor(synthetic.floor_side("tiles", small_counts), small_counts["view_size"], 0.02,
+                              synthetic.reach_px(small_counts), True)
+    small_views = synthetic.plan_texture("tiles", small_counts, floor)
+    large_views = {v["id"]: v for v in synthetic.plan_texture("tiles", large_counts, floor)}
+    assert len(large_views) > len(small_views) == 3 + 6 + 2 * 6 + 2 * 6
+    for view in small_views:
+        other = large_views[view["id"]]
+        assert np.array_equal(view["pose"], other["pose"]), view["id"]
+        assert view.get("params") == other.get("params") and view.get("frame") == other.get("frame")
+        assert view.get("day") == other.get("day")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from gtsweep.cli import lifecycle
+from gtsweep.cli import completion, lifecycle
 from gtsweep.cli.overrides import fail, place, prepare, resume_args
 from gtsweep.cli.search import parse
 from gtsweep.core.configs import ignore_missing_dir
@@ -22,6 +22,8 @@ PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--
 
 def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
+    if completion.handled(args):  # shell completion of a group's options, before the application loads
+        return
     invocation = parse(args)
     if not invocation.passthrough:
         try:

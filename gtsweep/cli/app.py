@@ -192,7 +192,7 @@ def format_outcome(outcome: SweepOutcome, tables: list[Table] = ()) -> str:
     if tables:
         for table in tables:
             lines += ["", table.markdown()]
-        lines += ["", "cells read 'ours ±half-width of the 95 % interval (paper)'; NA = not applicable"]
+        lines += ["", "cells read 'ours [95 % interval] (paper)'; NA = not applicable"]
     else:
         for title, pivot in headline_tables(outcome).items():
             lines += ["", title, pivot.to_string()]

@@ -14,11 +14,13 @@ symmetric footprints falls monotonically along any ray).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 from scipy import stats
+from scipy.stats import qmc
 
 from gtsweep.core.errors import BadInput
 from gtsweep.datasets import geometry
@@ -72,8 +74,12 @@ def plan_floor(side: int, view_size, scale_jitter: float, reach_px: float = 0.0,
 
 
 def stratified(rng: np.random.Generator, n: int) -> np.ndarray:
-    """``n`` uniform draws in [0, 1), one per stratum [k/n, (k+1)/n), in random order."""
-    return (rng.permutation(n) + rng.random(n)) / max(n, 1)
+    """``n`` uniform draws in [0, 1): the first ``n`` points of a scrambled one-dimensional Sobol sequence
+    (``scipy.stats.qmc``), so one per stratum [k/n, (k+1)/n) when ``n`` is a power of two, evenly spread for any
+    ``n``, and the first ``n`` of any larger count the same points: adding pairs never moves the earlier ones."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # balance warning for n not a power of two
+        return qmc.Sobol(1, scramble=True, seed=rng).random(n).ravel() if n else np.zeros(0)
 
 
 def overlap_targets(rng: np.random.Generator, n: int, law: Mapping) -> np.ndarray:
@@ -186,13 +192,13 @@ def pair_views(rng: np.random.Generator, n: int, floor: Floor, view_size, scale_
     shape = (view_size[1], view_size[0])
     overlaps, rotations = overlap_targets(rng, n, law), rotation_targets(rng, n, law)
     result = []
-    for target, rotation in zip(overlaps, rotations):
-        scales = rng.uniform(1 - scale_jitter, 1 + scale_jitter, 2)
-        direction, heading = rng.uniform(0, 2 * math.pi), rng.uniform(0, 360)
+    for target, rotation, own in zip(overlaps, rotations, rng.spawn(n)):  # a generator per pair: prefix-stable
+        scales = own.uniform(1 - scale_jitter, 1 + scale_jitter, 2)
+        direction, heading = own.uniform(0, 2 * math.pi), own.uniform(0, 360)
         distance = distance_for_overlap(float(target), direction, float(rotation), scales, view_size)
         turned = direction - math.radians(heading)  # the solved geometry, turned with the reference's heading
         step = distance * np.array([math.cos(turned), math.sin(turned)])
-        middle = uniform_in(rng, floor.main_box, abs(step[0]) / 2, abs(step[1]) / 2)
+        middle = uniform_in(own, floor.main_box, abs(step[0]) / 2, abs(step[1]) / 2)
         reference = geometry.centred_pose(*(middle - step / 2), heading, scales[0], shape)
         test = geometry.centred_pose(*(middle + step / 2), heading + rotation, scales[1], shape)
         result.append((reference, test, float(target)))

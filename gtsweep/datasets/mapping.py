@@ -41,6 +41,9 @@ GENERATOR_VERSION = 1
 DEFAULTS = {"map_images": [4, 16], "map_overlap": 0.5, "n_queries": 4, "n_foreign": 2, "n_unposed": 10,
             "textures": None, "px_per_mm": None}
 LOADERS = ("synthetic", "microgps", "hdground")
+#: The floors mapped on the embedded data set when ``experiment.textures`` is null (a real data set: every floor
+#: found, or ``dataset.textures``): one asphalt, one concrete, one wood, three floors of different character.
+EMBEDDED_TEXTURES = ("fine_asphalt", "concrete", "wood")
 #: Micro-GPS resolution (30 px = 4.8 mm).
 MICROGPS_PX_PER_MM = floors.MICROGPS_PX_PER_MM
 
@@ -168,10 +171,15 @@ def _render_texture(texture: str, options: Mapping, folder: Path) -> list[dict]:
     return records
 
 
+def embedded_textures(options: Mapping) -> list[str]:
+    """The floors to map on the embedded data set: ``experiment.textures``, else :data:`EMBEDDED_TEXTURES`."""
+    textures = options["textures"] or EMBEDDED_TEXTURES
+    return [textures] if isinstance(textures, str) else list(textures)
+
+
 def _synthetic(dataset: Mapping, options: dict) -> LocalizationData:
     base = synthetic.check(opts.read(dataset, synthetic.DEFAULTS, "synthetic"))
-    textures = options["textures"] or base["textures"]
-    textures = [textures] if isinstance(textures, str) else list(textures)
+    textures = embedded_textures(options)
     synthetic.check({**base, "textures": textures})
     sizes = options["map_images"] or DEFAULTS["map_images"]
     content = {k: v for k, v in base.items() if k not in synthetic.NOT_CONTENT and k not in (

@@ -129,20 +129,23 @@ def floor_side(texture: str, options: Mapping) -> int:
 
 
 def plan_texture(texture: str, options: Mapping, floor: layout.Floor) -> list[dict]:
-    """The views of one texture: dicts with id, split (or pair kind and role), pose and photometric params."""
-    rng = texture_rng(options["seed"], texture, "poses")
+    """The views of one texture: dicts with id, split (or pair kind and role), pose and photometric params. Each
+    split draws from its own stream and each pair from its own generator, so the first n views of a split are the
+    same for any larger count (a sequential reproduction adds images without moving the earlier ones)."""
     view, jitter = options["view_size"], float(options["scale_jitter"])
     views = []
     for split, box, key in (("optimisation", floor.optimisation_box, "n_optimisation"),
                             ("synthetic", floor.main_box, "n_synthetic")):
+        rng = texture_rng(options["seed"], texture, "poses", split)  # a stream per split: counts never interact
         for k, pose in enumerate(layout.single_views(rng, options[key], box, view, jitter)):
             views.append({"id": f"{texture}/{split}/{k:03d}", "split": split, "pose": pose, "params": None})
     for kind in ("incremental", "absolute"):
+        rng = texture_rng(options["seed"], texture, "poses", kind)
         for k, (reference, test, target) in enumerate(
                 layout.pair_views(rng, options[f"n_{kind}"], floor, view, jitter, options[kind])):
-            params = photometric.draw(rng, options["photometric"]) \
-                if kind == "absolute" and options["photometric"] is not None else None
             pair_id = f"{texture}/{kind}/{k:03d}"
+            params = photometric.draw(texture_rng(options["seed"], pair_id, "photometric"), options["photometric"]) \
+                if kind == "absolute" and options["photometric"] is not None else None
             views.append({"id": f"{pair_id}/reference", "split": kind, "pose": reference, "params": None,
                           "pair": pair_id, "target_overlap": target})
             views.append({"id": f"{pair_id}/test", "split": kind, "pose": test, "params": params,

@@ -17,6 +17,8 @@ POSE_DATA = ("optimisation", "incremental")
 SETTINGS = {
     "objective": Choice(OBJECTIVES),
     "n_trials": Range(1, None, integer=True),
+    "patience": Range(1, None, integer=True, optional=True),  # optimize/stopping.py
+    "min_improvement": Range(0, None, optional=True),
     "parallel_trials": Range(1, None, integer=True),
     "min_keypoints": Range(1, None, integer=True),
     "budget_per_mpx": Range(0, None, low_open=True, optional=True),

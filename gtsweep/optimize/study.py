@@ -17,6 +17,7 @@ from gtsweep.core.seeds import stable_seed
 from gtsweep.optimize.objective import evaluate
 from gtsweep.optimize.search_space import defaults_in_space
 from gtsweep.optimize.settings import job_transforms
+from gtsweep.optimize.stopping import settled
 from gtsweep.optimize.targets import Target
 
 
@@ -74,7 +75,8 @@ def optimise(study, target: Target, settings: Mapping, shards, executor, seed: i
             study.enqueue_trial(start, user_attrs={"defaults": True})
     new = failed = 0
     last_error = ""
-    while (done := len(complete_trials(study))) < n_trials:
+    while (done := len(complete_trials(study))) < n_trials and not settled(
+            [t.value for t in complete_trials(study)], settings.get("patience"), settings.get("min_improvement") or 0):
         study.sampler = optuna.samplers.TPESampler(seed=stable_seed(settings["sampler_seed"], done),
                                                    n_startup_trials=settings["n_startup_trials"])
         for _ in range(min(parallel, n_trials - done)):

@@ -20,9 +20,9 @@ import pandas as pd
 from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.results import summarize
-from gtsweep.report.labels import shown_label
+from gtsweep.report.labels import shown_label, strength_label
 from gtsweep.report.samples import Views
-from gtsweep.report.tables import Table, frame
+from gtsweep.report.tables import Table, frame, with_unit
 
 
 def mean_summary(summaries: list[dict]) -> dict:
@@ -82,8 +82,9 @@ def texture_summaries(summaries: list[dict], views: Views, texture: str) -> list
 
 def strength_table(summaries: list[dict], views: Views | None, name: str = "synthetic_by_strength",
                    note: str = "") -> Table | None:
-    """Per cell on a synthetic transform and per strength: the curve metrics of its experiment, ``ours ±half-width``
-    (survey section 5: results per transformation type and strength)."""
+    """Per cell on a synthetic transform and per strength (with its unit): the curve metrics of its experiment,
+    ``ours [low, high]``, headed with their units (survey section 5: results per transformation type and
+    strength)."""
     df = frame(summaries)
     part = df[df["transform"].isin(list(TRANSFORMS)) & (df["status"] == "ok")]
     if part.empty or not views:
@@ -93,8 +94,7 @@ def strength_table(summaries: list[dict], views: Views | None, name: str = "synt
                                           for m in schema.CURVES[schema.experiment_of(s)]})
                if any(schema.aggregable(schema.METRICS[m], schema.with_derived(views.get(k, pd.DataFrame())))
                       for k in part["key"])]
-    table = Table(name, f"Synthetic transforms per type and strength{note}: ours ±half-width of the 95 % interval",
-                  pd.DataFrame())
+    table = Table(name, f"Synthetic transforms per type and strength{note}: ours [95 % interval]", pd.DataFrame())
     out = []
     for index, cell in part.iterrows():
         rows = views.get(cell["key"])
@@ -104,12 +104,14 @@ def strength_table(summaries: list[dict], views: Views | None, name: str = "synt
         label = "-".join(shown_label(methods[k]) for k in ("detector", "descriptor") if methods.get(k))
         label += f" [{methods['selector']}]"
         for strength in sorted(pd.to_numeric(rows["strength"], errors="coerce").dropna().unique()):
-            record = {"pairing": label, "transform": cell["transform"], "strength": f"{strength:g}"}
+            record = {"pairing": label, "transform": cell["transform"],
+                      "strength": strength_label(cell["transform"], strength)}
             for metric in metrics:
                 if schema.aggregable(schema.METRICS[metric], schema.with_derived(rows)):
-                    record[metric] = table.show(label, f"{cell['transform']} {strength:g} {metric}",
-                                                part.loc[[index]], metric, None, schema.METRICS[metric].digits,
-                                                views, {"strength": float(strength)})
+                    declared = schema.METRICS[metric]
+                    record[with_unit(metric, declared.unit)] = table.show(
+                        label, f"{cell['transform']} {strength:g} {metric}", part.loc[[index]], metric, None,
+                        declared.digits, views, {"strength": float(strength)})
             out.append(record)
     if not out:
         return None

@@ -118,7 +118,8 @@ def headline_markdown(summary: pd.DataFrame, jobs: list[dict], headlines) -> str
             continue
         columns = [c for c in ["setting", *METHODS]
                    if c in part and (c not in VARIANT_COLUMNS or part[c].nunique() > 1)]
-        lines += [f"{metric}:", "", "| " + " | ".join([*columns, metric]) + " |", "|" + "---|" * (len(columns) + 1)]
+        header = f"{metric} ({schema.METRICS[metric].unit}): mean ± std (n)"
+        lines += [f"{metric}:", "", "| " + " | ".join([*columns, header]) + " |", "|" + "---|" * (len(columns) + 1)]
         for row in part.itertuples(index=False):
             values = [str(getattr(row, c)) if pd.notna(getattr(row, c)) else "" for c in columns]
             std = getattr(row, f"{metric}_std")

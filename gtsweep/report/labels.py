@@ -7,6 +7,11 @@ from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.pose import ESTIMATORS
 
+#: The strength of each synthetic transform, with its unit (survey section 3), for axes and table cells.
+STRENGTH_UNIT = {"rotation": "deg", "translation": "IoU", "noise": "sigma, gray levels", "gamma": "gamma"}
+STRENGTH_AXIS = {"rotation": "rotation angle (deg)", "translation": "IoU of reference and test masks",
+                 "noise": "noise sigma (gray levels)", "gamma": "gamma"}
+
 #: Our learned feature is compared with the survey's learned one.
 PAPER_NAME = {"xfeat": "LIFT"}
 
@@ -25,6 +30,14 @@ def variant_label(variant: tuple) -> str:
 def variant_slug(variant: tuple) -> str:
     """``flann_magsac``: a variant's part of a file name ("" for cells without a matcher and an estimator)."""
     return "_".join(str(name) for _, name in variant if name)
+
+
+def strength_label(transform: str, strength: float) -> str:
+    """``90 deg``, ``0.5 IoU``, ``gamma 2``: a strength with its unit."""
+    unit = STRENGTH_UNIT.get(transform, "")
+    if unit == "gamma":
+        return f"gamma {strength:g}"
+    return f"{strength:g} {unit}".strip()
 
 
 def paper_label(name: str) -> str:

@@ -16,6 +16,7 @@ import pandas as pd
 from gtsweep.report.tables import Table
 
 METHODS = ("detector", "selector", "descriptor", "matcher", "estimator")
+SUCCESS = "success (% of in-map queries) [95 % CI]"
 
 
 def _pct(value) -> str:
@@ -46,17 +47,17 @@ def cell_table(summaries: list[dict]) -> Table:
         # the largest map's too (:func:`gtsweep.evaluation.schema.headline_rows`)
         largest = (s.get("by_map_images") or {}).get(max(s.get("by_map_images") or {"nan": 0}, key=float)) or m
         if s["status"] != "ok":
-            rows.append({**_label(s, several), "success": s["status"].upper(), "reason": s.get("reason", "")})
+            rows.append({**_label(s, several), SUCCESS: s["status"].upper(), "reason": s.get("reason", "")})
             continue
         rows.append({**_label(s, several),
-                     "success": f"{_pct(m.get('localization_success'))} [{_pct(m.get('localization_success_ci_low'))}"
-                                f", {_pct(m.get('localization_success_ci_high'))}]",
-                     "false loc.": _pct(m.get("false_localization")),
+                     SUCCESS: f"{_pct(m.get('localization_success'))} [{_pct(m.get('localization_success_ci_low'))}"
+                              f", {_pct(m.get('localization_success_ci_high'))}]",
+                     "false loc. (% of foreign queries)": _pct(m.get("false_localization")),
                      "pos. err (px)": _num(m.get("success_position_error"), 2),
                      "ori. err (deg)": _num(m.get("success_orientation_error"), 3),
-                     "ms/query": _num(m.get("t_query"), 0, 1000),
-                     "map MB": _num(largest.get("map_bytes"), 2, 1e-6),
-                     "map kB/m2": _num(largest.get("map_bytes_per_m2"), 0, 1e-3),
+                     "time per query (ms)": _num(m.get("t_query"), 0, 1000),
+                     "map (MB)": _num(largest.get("map_bytes"), 2, 1e-6),
+                     "map (kB/m2)": _num(largest.get("map_bytes_per_m2"), 0, 1e-3),
                      "map build (s)": _num(largest.get("map_build_s"), 1), "reason": ""})
     frame = pd.DataFrame(rows).set_index("pairing").fillna("")
     frame = frame[[c for c in frame.columns if c != "reason"] + ["reason"]]  # last, even when an NA cell is first
@@ -76,13 +77,13 @@ def size_table(summaries: list[dict]) -> Table | None:
         row = {"cell": " / ".join(str(s["methods"].get(k)) for k in ("detector", "descriptor", "matcher", "estimator"))}
         for size in sorted(by_size, key=float):
             values = by_size[size]
-            row[f"{int(float(size))} img"] = (f"{_pct(values.get('localization_success'))}, "
-                                              f"{_num(values.get('t_query'), 0, 1000)} ms")
+            row[f"{int(float(size))} images"] = (f"{_pct(values.get('localization_success'))}, "
+                                                 f"{_num(values.get('t_query'), 0, 1000)} ms")
         rows.append(row)
     if not rows:
         return None
-    return Table("localization_map_size", "Success and time per query against map size (number of mapping images)",
-                 pd.DataFrame(rows).set_index("cell"))
+    return Table("localization_map_size", "Success (% of in-map queries) and time per query (ms) against map size "
+                 "(columns: mapping images in the map)", pd.DataFrame(rows).set_index("cell"))
 
 
 def plot_map_size(summaries: list[dict], out_dir: Path) -> list[Path]:

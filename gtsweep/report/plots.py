@@ -20,11 +20,9 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from gtsweep.evaluation import schema  # noqa: E402
-from gtsweep.report.labels import label  # noqa: E402
+from gtsweep.report.labels import STRENGTH_AXIS, label  # noqa: E402
 from gtsweep.report.samples import Views, estimate  # noqa: E402
-
-STRENGTH_AXIS = {"rotation": "rotation angle (deg)", "translation": "IoU of reference and test masks",
-                 "noise": "noise sigma", "gamma": "gamma"}
+from gtsweep.report.tables import paper, paper_order  # noqa: E402
 
 
 def _series_name(methods: dict) -> str:
@@ -81,9 +79,12 @@ def _plot_lines(ax, cells: list[dict], step_key: str, metric: str, log_x: bool =
 
 
 def _axis(metric: str) -> str:
-    """Axis label from the schema: the metric and its unit (shares have none)."""
-    declared = schema.METRICS[metric]
-    return metric.replace("_", " ") + ("" if declared.bounded else f" ({declared.unit})")
+    """Axis label from the schema: the metric and its unit."""
+    return f"{_name(metric)} ({schema.METRICS[metric].unit})"
+
+
+def _name(metric: str) -> str:
+    return metric.replace("_", " ")
 
 
 def _bound(ax, metric: str) -> None:
@@ -117,7 +118,8 @@ def plot_strength_curves(summaries: list[dict], out_dir: Path, views: Views | No
         fig, ax = plt.subplots(figsize=(9, 4.5))
         _plot_lines(ax, cells, "strength", metric, views=views)
         ax.set(xlabel=STRENGTH_AXIS.get(transform, "strength"), ylabel=_axis(metric),
-               title=f"{metric}: {transform} ({_views(cells)} views per cell{BANDS if views else ''})")
+               title=f"{_name(metric)} against {transform} ({_per_point(cells, 'strength', views)} views per "
+                     f"point{BANDS if views else ''})")
         _bound(ax, metric)
         ax.grid(alpha=0.3)
         files.append(_save(fig, out_dir / f"{metric}_vs_{transform}.png"))
@@ -131,16 +133,23 @@ def plot_reference_counts(summaries: list[dict], out_dir: Path, views: Views | N
         fig, ax = plt.subplots(figsize=(9, 4.5))
         _plot_lines(ax, cells, "reference_count", metric, log_x=True, views=views)
         ax.set_xscale("log")
-        ax.set(xlabel="reference features", ylabel=_axis(metric),
-               title=f"{metric} against reference features ({_views(cells)} pairs per cell{BANDS if views else ''})")
+        ax.set(xlabel="reference features per image", ylabel=_axis(metric),
+               title=f"{_name(metric)} against reference features ({_per_point(cells, 'reference_count', views)} "
+                     f"pairs per point{BANDS if views else ''})")
         _bound(ax, metric)
         ax.grid(alpha=0.3, which="both")
         files.append(_save(fig, out_dir / f"{_stem(metric)}_vs_reference_features.png"))
     return files
 
 
+CELL_INCHES = (1.25, 0.62)  # width, height of a heat map cell: room for the value and its interval
+NA_COLOUR = "0.88"
+
+
 def plot_success_heatmaps(summaries: list[dict], out_dir: Path) -> list[Path]:
-    """Detector x descriptor heat map of the pose headline (success) per pair kind (survey Tables 4 and 5)."""
+    """Detector x descriptor heat map of the pose headline (success) per pair kind (survey Tables 4 and 5): each
+    cell its value and 95 % interval, NA (grey) where the pairing cannot be evaluated; rows and columns in the
+    survey table's order, the figure sized to its cells."""
     metric = schema.headline("pose")
     files = []
     for transform in ("incremental", "absolute"):
@@ -148,30 +157,60 @@ def plot_success_heatmaps(summaries: list[dict], out_dir: Path) -> list[Path]:
                  and schema.experiment_of(s) == "pose" and not s.get("by_reference_count")]
         if not cells:
             continue
-        detectors = sorted({s["methods"]["detector"] for s in cells})
-        descriptors = sorted({s["methods"]["descriptor"] for s in cells})
-        values = np.full((len(detectors), len(descriptors)), np.nan)
+        theirs = paper(f"table{4 if transform == 'incremental' else 5}_success_{transform}.csv")  # its order
+        detectors = paper_order({s["methods"]["detector"] for s in cells}, theirs["detector"])
+        descriptors = paper_order({s["methods"]["descriptor"] for s in cells}, theirs.columns[1:])
+        values = np.full((3, len(detectors), len(descriptors)), np.nan)  # value, low, high
         for s in cells:
             if s["status"] == "ok":
                 i, j = detectors.index(s["methods"]["detector"]), descriptors.index(s["methods"]["descriptor"])
-                value = (s.get("metrics") or {}).get(metric)
-                values[i, j] = np.nan if value is None else value
-        fig, ax = plt.subplots(figsize=(1.2 + 0.7 * len(descriptors), 1.2 + 0.45 * len(detectors)))
-        image = ax.imshow(np.ma.masked_invalid(values), vmin=0, vmax=1, cmap="viridis")
-        ax.set_xticks(range(len(descriptors)), [label(d) for d in descriptors], rotation=45, ha="right")
+                found = s.get("metrics") or {}
+                values[:, i, j] = [np.nan if found.get(k) is None else found[k]
+                                   for k in (metric, f"{metric}_ci_low", f"{metric}_ci_high")]
+        width, height = CELL_INCHES
+        fig, ax = plt.subplots(figsize=(2.6 + width * len(descriptors), 1.9 + height * len(detectors)))
+        ax.set_facecolor(NA_COLOUR)
+        image = ax.imshow(np.ma.masked_invalid(values[0]), vmin=0, vmax=1, cmap="viridis", aspect="auto")
+        ax.set_xticks(range(len(descriptors)), [label(d) for d in descriptors], rotation=30, ha="right")
         ax.set_yticks(range(len(detectors)), [label(d) for d in detectors])
-        for (i, j), v in np.ndenumerate(values):
-            ax.text(j, i, "NA" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=7,
-                    color="white" if np.isnan(v) or v < 0.6 else "black")
-        fig.colorbar(image, ax=ax, label=_axis(metric))
-        ax.set_title(f"{metric}, {transform} pairs ({_views(cells)} per cell)")
+        ax.set(xlabel="descriptor", ylabel="detector")
+        for (i, j), v in np.ndenumerate(values[0]):
+            low, high = values[1, i, j], values[2, i, j]
+            text = "NA" if np.isnan(v) else f"{v:.2f}" + ("" if np.isnan(low) else f"\n[{low:.2f}, {high:.2f}]")
+            ax.text(j, i, text, ha="center", va="center", fontsize=8,
+                    color="black" if np.isnan(v) or v >= 0.6 else "white")
+        fig.colorbar(image, ax=ax, label=_axis(metric), fraction=0.08 if len(descriptors) > 2 else 0.15)
+        n = _views(cells)
+        ax.set_title(f"{_name(metric).capitalize()}, {transform} pairs\n{n} pairs per cell; [95 % interval]; "
+                     "NA: not applicable", fontsize=10)
         files.append(_save(fig, out_dir / f"{_stem(metric)}_heatmap_{transform}.png"))
     return files
 
 
 def _views(cells: list[dict]) -> str:
     """Views (or pairs) per cell of a plot: ``27``, or ``12–27`` when the cells differ."""
-    counts = [c.get("n_views", c.get("n_rows")) for c in cells if c["status"] == "ok"]
+    return _span([c.get("n_views", c.get("n_rows")) for c in cells if c["status"] == "ok"])
+
+
+def _per_point(cells: list[dict], step_key: str, views: Views | None) -> str:
+    """Views (or pairs) behind each point of a curve: counted per step in the cells' per-view rows; without them,
+    a cell's views when each is repeated at every step (a pair at every reference count), else shared evenly by
+    the steps (an image rotated by each angle is a view per angle)."""
+    counts = []
+    for cell in (c for c in cells if c["status"] == "ok"):
+        rows = (views or {}).get(cell.get("key"))
+        steps = len(cell.get(f"by_{step_key}") or {})
+        n_views, n_rows = cell.get("n_views", cell.get("n_rows")), cell.get("n_rows")
+        if rows is not None and step_key in rows:
+            counts += pd.to_numeric(rows[step_key], errors="coerce").dropna().value_counts().tolist()
+        elif steps and n_views is not None:
+            repeated = n_rows is not None and n_rows >= n_views * steps
+            counts.append(int(n_views) if repeated else int(n_views) // steps)
+    return _span(counts)
+
+
+def _span(counts) -> str:
+    """``9``, or ``8–9`` when they differ; ``no`` without any."""
     counts = [int(n) for n in counts if n is not None]
     if not counts:
         return "no"
@@ -188,6 +227,6 @@ def write_plots(summaries: list[dict], out_dir: str | Path, views: Views | None 
 
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # nothing cut: titles, legends beside the axes
     plt.close(fig)
     return path

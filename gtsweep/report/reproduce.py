@@ -1,130 +1,153 @@
-"""Run every survey table preset and write ``docs/REPRODUCTION.md``: ``python -m gtsweep.report.reproduce``.
+"""Write ``docs/REPRODUCTION.md`` from the survey's table presets: ``python -m gtsweep.report.reproduce``.
 
-Each preset of ``sweeps/`` runs as its own ``python -m gtsweep`` process at a chosen size; its wall time, peak
-memory (resident memory of its whole process tree, sampled), keypoint cache hit rate and number of MLflow runs
-are recorded. The survey's tables are rebuilt beside the paper's numbers, and each of the survey's findings is
-judged with a paired test on the same images or pairs (holds, fails or inconclusive at ``--alpha``); each table
-names the pairings statistically tied with its best. Hand-written explanations of differences are read from
+The runs themselves are :mod:`gtsweep.orchestration.reproduce`'s (one size, or rounds with ``--size decide``);
+this module is the thin command line and the document. The survey's tables are rebuilt beside the paper's
+numbers; each of the survey's findings is a pre-stated hypothesis (:mod:`gtsweep.report.findings`) judged on
+the same images or pairs, with ``--size decide`` under the sequential design of :mod:`gtsweep.report.sequential`;
+each table names the entries tied with its best. Hand-written explanations of differences are read from
 ``docs/reproduction_notes.md`` when it exists.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import re
 import shutil
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
-from gtsweep.core.memory import PeakMemory
-from gtsweep.core.paths import PROJECT_DIR
+from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
+from gtsweep.orchestration import reproduce as runs
 from gtsweep.report.findings import check_findings, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import annotate, load_scale
+from gtsweep.report.sequential import Sequential
 from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
 
-PRESETS = ("table2_selectors", "table3_detectors", "table4_incremental", "table5_absolute", "table6_pairings",
-           "table7_reference_features")
-#: Data set sizes (per texture). The table presets select dataset=survey (1288x964 views, capture physics); "hour"
-#: reduces its counts (1 synthetic image, 6 + 6 pairs per texture) to about an hour on 2 cores, "presets" keeps the
-#: presets' stated counts (10 synthetic images, 20 + 20 pairs; several hours), "full" is the survey's protocol
-#: (100 + 100 + 100; days on 2 cores, hours on a cluster). "tiny" is for tests.
-SIZES = {
-    "tiny": ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "dataset.n_synthetic=1",
-             "dataset.n_incremental=2", "dataset.n_absolute=2"],
-    "hour": ["dataset=survey", "dataset.n_synthetic=1", "dataset.n_incremental=6", "dataset.n_absolute=6"],
-    "presets": ["dataset=survey"],
-    "full": ["dataset=survey", "dataset.n_synthetic=100", "dataset.n_incremental=100", "dataset.n_absolute=100"],
-}
-#: Table 2 evaluates without selection (hundreds of thousands of keypoints): one image per texture, as the survey.
-PRESET_OVERRIDES = {"table2_selectors": ["dataset.n_synthetic=1"]}
+PRESETS, SIZES = runs.PRESETS, runs.SIZES
+CHOICES = sorted([*SIZES, "decide"])
+TUNED = CONF_DIR / "detector" / "tuned"
+#: ``make tune``'s data set: dataset=survey with its optimisation views only.
+TUNING_DATA = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0}
 
 
-def run_preset(preset: str, overrides: list[str], work: Path, uri: str) -> dict:
-    """Run one preset in its own process; returns its measurements."""
-    out = work / preset
-    args = [sys.executable, "-m", "gtsweep", f"sweeps={preset}", *overrides, f"hydra.run.dir={out}",
-            f"mlflow.tracking_uri={uri}", "runner.progress=false", f"cache.dir={work}/cache"]
-    start = time.perf_counter()
-    with open(work / f"{preset}.log", "w") as log:
-        process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, cwd=work)
-        with PeakMemory(pid=process.pid) as memory:  # the whole tree, every 0.5 s
-            process.wait()
-    peak = memory.total
-    seconds = time.perf_counter() - start
-    if process.returncode != 0:
-        raise SystemExit(f"gtsweep.reproduce: preset {preset} failed (exit {process.returncode}); "
-                         f"see {work / f'{preset}.log'}")
-    record = json.loads((out / "run.json").read_text())
-    parent = json.loads((out / "mlflow.json").read_text())["parent_run_id"]
-    lookups = record["cache_hits"] + record["cache_misses"]
-    return {"preset": preset, "output": out, "wall_s": seconds, "peak_mb": peak / 2**20,
-            "cache_hit_rate": record["cache_hits"] / lookups if lookups else float("nan"),
-            "mlflow_runs": 1 + _child_runs(uri, parent), "cells": record["cells"]}
+def tuning_fingerprint() -> str:
+    """The fingerprint of the data set ``make tune`` tunes on (dataset=survey, optimisation views only)."""
+    import yaml
+
+    from gtsweep.datasets import load_dataset
+
+    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
+    return load_dataset({**options, **TUNING_DATA}).fingerprint()
 
 
-def _child_runs(uri: str, parent: str) -> int:
-    from mlflow.tracking import MlflowClient
+def tuned_fingerprints(directory: Path = TUNED) -> dict[str, str]:
+    """Each tuned detector file's data set fingerprint, from its header ("Data set fingerprint X.")."""
+    found = {}
+    for path in sorted(Path(directory).glob("*.yaml")):
+        match = re.search(r"Data set fingerprint ([0-9a-f]+)", path.read_text())
+        found[path.stem] = match.group(1) if match else "none"
+    return found
 
-    client = MlflowClient(uri)
-    experiment = client.get_run(parent).info.experiment_id
-    return len(client.search_runs([experiment], f"tags.mlflow.parentRunId = '{parent}'", max_results=50000))
+
+def tuned_line(expected: str | None, directory: Path = TUNED) -> str:
+    """What the document states about the detectors' tuned parameters: on which data set they were tuned."""
+    found = tuned_fingerprints(directory)
+    if expected is None:
+        return ""
+    stale = {k: v for k, v in found.items() if v != expected}
+    if not stale:
+        return (f"Detector parameters: all {len(found)} tuned files were tuned on this data set's optimisation "
+                f"views (fingerprint {expected}).")
+    by = {}
+    for name, fingerprint in stale.items():
+        by.setdefault(fingerprint, []).append(name)
+    which = "; ".join(f"{', '.join(names)} on {fp}" for fp, names in by.items())
+    return (f"**Detector parameters not tuned on this data set**: {len(stale)} of {len(found)} tuned files carry "
+            f"another data set's fingerprint ({which}); `make tune` on dataset=survey's optimisation views "
+            f"(fingerprint {expected}) re-tunes them.")
 
 
-def write_document(results: list[dict], size: str, docs: Path, alpha: float = ALPHA) -> Path:
+def _latest(results: list[dict]) -> list[dict]:
+    """Each preset's newest run (the last round that ran it), in preset order."""
+    newest = {}
+    for r in results:
+        if r["preset"] not in newest or r.get("round", 0) >= newest[r["preset"]].get("round", 0):
+            newest[r["preset"]] = r
+    return [newest[p] for p in PRESETS if p in newest] + [r for p, r in newest.items() if p not in PRESETS]
+
+
+def _size_line(size: str, results: list[dict]) -> str:
+    if size != "decide":
+        return f"size `{size}`: {' '.join(SIZES.get(size, []))} (counts per texture)"
+    reached = ", ".join(f"{r['preset']} {runs.counts(r['preset'], r['counts'])}" for r in _latest(results))
+    spent, full = sum(r["wall_s"] for r in results), runs.full_protocol_estimate(results)
+    return (f"size `decide` (sequential rounds {', '.join('/'.join(map(str, c)) for c in runs.ROUNDS)} synthetic "
+            f"images / incremental / absolute pairs per texture, each round only for the presets of undecided "
+            f"findings); counts per texture reached: {reached}. Compute spent: {spent / 3600:.1f} h against an "
+            f"estimated {full / 3600:.0f} h for the fixed full protocol (each preset's largest run scaled "
+            f"linearly to 100 per texture)")
+
+
+def write_document(results: list[dict], size: str, docs: Path, alpha: float = ALPHA,
+                   sequential: Sequential | None = None, tuning: str | None = None) -> Path:
     """``docs/REPRODUCTION.md`` plus the tables' CSVs and the plots in ``docs/reproduction/``: the measurements,
-    every finding's verdict with its test and numbers, and every table with the entries tied with its best."""
+    every finding's verdict with its test, margin and numbers, and every table with the entries tied with its
+    best (each preset's newest run)."""
     assets = docs / "reproduction"
     shutil.rmtree(assets, ignore_errors=True)
     assets.mkdir(parents=True)
-    scale = load_scale(results[0]["output"] if results else docs)  # the presets share one data set
+    latest = _latest(results)
+    scale = load_scale(latest[0]["output"] if latest else docs)  # the presets share one data set
     command = f"python -m gtsweep.report.reproduce --size {size}" + (f" --alpha {alpha:g}" if alpha != ALPHA else "")
+    rounds = any("round" in r for r in results)
     lines = ["# Reproducing the survey", "",
              f"Generated by `{command}` (`make reproduce`) on the embedded rendered data set (the table presets "
-             f"select `dataset=survey`: 1288×964 views, capture physics), size `{size}`: "
-             f"{' '.join(SIZES.get(size, []))} (counts per texture). Wall time on this machine "
-             f"({os.cpu_count()} cores): "
-             f"{sum(r['wall_s'] for r in results) / 60:.0f} min for all presets. Cells read `ours ±half-width (paper)`: the half-width of our 95 % "
-             "interval (Wilson for a success rate, a seeded bootstrap over images otherwise); NA = not applicable.",
-             "", scale.line(), "",
-             "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate | MLflow runs |",
-             "|---|---|---|---|---|---|"]
-    lines += [f"| {r['preset']} | {r['cells']} | {r['wall_s']:.0f} | {r['peak_mb']:.0f} | "
-              f"{r['cache_hit_rate']:.2f} | {r['mlflow_runs']} |" for r in results]
-    lines += [f"| all | {sum(r['cells'] for r in results)} | {sum(r['wall_s'] for r in results):.0f} | "
-              f"{max(r['peak_mb'] for r in results):.0f} | | {sum(r['mlflow_runs'] for r in results)} |", "",
+             f"select `dataset=survey`: 1288×964 views, capture physics), {_size_line(size, results)}. Wall time "
+             f"on this machine ({os.cpu_count()} cores): {sum(r['wall_s'] for r in results) / 60:.0f} min for all "
+             "runs. Cells read `ours [low, high] (paper)`: the ends of our 95 % interval over images (a t interval; "
+             "a design-effect Wilson interval for a rate); NA = not applicable.",
+             "", scale.line(), "", *([tuned_line(tuning), ""] if tuning else []),
+             ("| round " if rounds else "") + "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate "
+             "| MLflow runs |", ("|---" if rounds else "") + "|---|---|---|---|---|---|"]
+    lines += [(f"| {r['round']} " if rounds else "") + f"| {r['preset']} | {r['cells']} | {r['wall_s']:.0f} | "
+              f"{r['peak_mb']:.0f} | {r['cache_hit_rate']:.2f} | {r['mlflow_runs']} |" for r in results]
+    lines += [("| " if rounds else "") + f"| all | {sum(r['cells'] for r in results)} | "
+              f"{sum(r['wall_s'] for r in results):.0f} | {max((r['peak_mb'] for r in results), default=0):.0f} | "
+              f"| {sum(r['mlflow_runs'] for r in results)} |", "",
               "Wall time and peak resident memory (sampled every 0.5 s, the whole process tree: driver and Ray "
               f"workers) of each preset's own `python -m gtsweep` process on this machine ({os.cpu_count()} cores); "
-              "cache hit rate: share of "
-              "its keypoint detections found in the cache shared by the presets (a detection reused by several "
-              "descriptors within one preset is computed once and not counted again); MLflow runs: the preset's "
-              "parent run plus one child run per cell."]
+              "cache hit rate: share of its keypoint detections found in the cache shared by the presets (and "
+              "rounds); MLflow runs: the preset's parent run plus one child run per cell."]
     summaries, views, ties = {}, {}, []
-    tables = ["", "## The tables", "", "Each preset's table in the survey's layout, `ours ±half-width (paper)`, "
+    tables = ["", "## The tables", "", "Each preset's table in the survey's layout, `ours [low, high] (paper)`, "
               "with the entries tied with its best below it, and its plots."]
-    for r in results:
+    for r in latest:
         summaries[r["preset"]], views[r["preset"]] = load_summaries(r["output"]), load_views(r["output"])
         for table in build_tables(summaries[r["preset"]], views[r["preset"]], alpha):
             if table.name != r["preset"] and not table.name.startswith(f"{r['preset']}_"):  # one per variant
                 continue  # e.g. the Table 2 sweep also fills Table 3; its own preset shows it
             annotate([table], load_scale(r["output"]))
-            tables += ["", table.markdown()]
+            tables += ["", table.markdown(note=True)]
             (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
             if table.ties is not None and table.ties.best:
                 ties.append(_ties_row(table))
-        for png in sorted((r["output"] / "report").glob("*.png")):
+        for png in sorted((Path(r["output"]) / "report").glob("*.png")):
             target = assets / f"{r['preset']}__{png.name}"
             shutil.copy(png, target)
             tables += ["", f"![{png.stem}](reproduction/{target.name})"]
-    lines += findings_section({k: frame(v) for k, v in summaries.items()}, views, alpha)
+    frames = {k: frame(v) for k, v in summaries.items()}
+    found = sequential.findings() if sequential else check_findings(frames, views, alpha)
+    lines += findings_section(found, survey_variant(frames)[1], alpha, sequential)
     if ties:
         lines += ["", "## Ties with the best", "",
-                  f"Per table, the entries whose paired test against the best is not significant at alpha = "
-                  f"{alpha:g} (exact McNemar on pairs, else a permutation test over images): the data cannot rank "
-                  "them below the best.", "", "| table | best | tied with the best | which |", "|---|---|---|---|"]
+                  "Per table, the entries whose paired t test over images against the best is not significant "
+                  f"after Holm's correction across the table's entries (family-wise alpha = {alpha:g}): the data "
+                  "cannot rank them below the best.", "", "| table | best | tied with the best | which |",
+                  "|---|---|---|---|"]
         lines += ties
     notes = docs / "reproduction_notes.md"
     if notes.exists():
@@ -137,37 +160,58 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
 
 def _ties_row(table) -> str:
     t = table.ties
-    tested = len(t.tests) + 1
     untested = f"; {len(t.untested)} without per-view rows" if t.untested else ""
-    return (f"| {table.name} | {t.best} ({t.metric} {t.best_value:.2f}) | {len(t.tied)} of {tested - 1}{untested} | "
-            f"{', '.join(t.tied) or '-'} |")
+    return (f"| {table.name} | {t.best} ({t.metric} {t.best_value:.2f}) | {len(t.tied)} of {len(t.tests)}{untested} "
+            f"| {', '.join(t.tied) or '-'} |")
 
 
-def findings_section(frames: dict, views: dict, alpha: float) -> list[str]:
-    """The findings table: each finding's verdict, its test and our numbers."""
-    findings, variant = check_findings(frames, views, alpha), survey_variant(frames)[1]
+def findings_section(findings: list, variant: str, alpha: float, sequential: Sequential | None = None) -> list[str]:
+    """The findings table: per finding its verdict, test, margin, n, intervals, correction (and with rounds: the
+    round and count per texture of its verdict, the level of that look; undecided: the images that would
+    decide it at the observed effect)."""
     counts = {}
     for f in findings:
         counts[f.verdict] = counts.get(f.verdict, 0) + 1
     tally = ", ".join(f"{n} {verdict}" for verdict, n in sorted(counts.items(), key=lambda kv: -kv[1]))
-    return ["", "## The survey's findings on our data", "",
-            f"{tally}. Each finding is a comparison judged with a paired test on the same images or pairs at "
-            f"alpha = {alpha:g} (`gtsweep/report/findings.py`): *holds* = significant in the survey's direction, "
-            "*fails* = significant the other way, *inconclusive* = the data cannot tell; A vs B, the difference "
-            "A - B with its interval, the p-value and the number of images or pairs compared."
-            + (f" {variant}" if variant else ""), "",
-            "| finding | verdict | test | our numbers |", "|---|---|---|---|"] + \
-        [f"| {f.text} | {f.verdict} | {f.test or '-'} | {f.evidence.replace('|', '/')} |" for f in findings]
+    design = (" Rounds under the sequential design of `gtsweep/report/sequential.py` (Lan-DeMets Pocock-type "
+              f"alpha spending, total alpha = {alpha:g} per verdict kind per finding)." if sequential else "")
+    head = ["", "## The survey's findings on our data", "",
+            f"{tally}. Each finding is a hypothesis fixed before the results (`gtsweep/report/findings.py`, "
+            "`docs/statistics_design.md`): *holds* = the survey's claim shown, *fails* = its opposite shown (Holm "
+            "across the finding's comparisons), *equivalent* = equal within the margin, *undecided* = the data "
+            f"cannot tell; one-sided tests at alpha = {alpha:g}, intervals at 1 - 2 alpha.{design}"
+            + (f" {variant}" if variant else ""), ""]
+    if sequential:
+        rows = ["| finding | verdict | decided at (round, n per texture, level) | test | margin | correction | "
+                "evidence |", "|---|---|---|---|---|---|---|"]
+        for s in sequential.status:
+            f = s.finding or findings[sequential.status.index(s)]
+            at = f"round {s.round}, {s.per_texture}, {s.nominal:.2g}" if s.round else "-"
+            rows.append(f"| {f.text} | {f.verdict}{_more(f)} | {at} | {f.test or '-'} | {f.margin} | "
+                        f"{f.correction or '-'} | {f.evidence.replace('|', '/')} |")
+        return head + rows
+    return head + ["| finding | verdict | test | margin | n | correction | evidence |",
+                   "|---|---|---|---|---|---|---|"] + \
+        [f"| {f.text} | {f.verdict}{_more(f)} | {f.test or '-'} | {f.margin} | {f.n} | {f.correction or '-'} | "
+         f"{f.evidence.replace('|', '/')} |" for f in findings]
+
+
+def _more(finding) -> str:
+    need = finding.to_decide
+    if not math.isfinite(need) or not finding.n:
+        return ""
+    return f" (~{math.ceil(need)} images or pairs would decide it at the observed effect, now {finding.n})"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gtsweep.report.reproduce", description=__doc__.splitlines()[0])
-    parser.add_argument("--size", choices=sorted(SIZES), default="hour")
+    parser.add_argument("--size", choices=CHOICES, default="decide",
+                        help="a fixed size, or `decide`: rounds of growing counts until every finding is decided")
     parser.add_argument("--presets", nargs="*", default=list(PRESETS), choices=PRESETS)
     parser.add_argument("--work", default=".gtsweep_cache/reproduce", help="where the runs go")
     parser.add_argument("--docs", default=str(PROJECT_DIR / "docs"), help="where REPRODUCTION.md goes")
     parser.add_argument("--alpha", type=float, default=ALPHA,
-                        help=f"significance level of the findings' paired tests and the ties (default {ALPHA})")
+                        help=f"significance level of the findings' tests and the ties (default {ALPHA})")
     parser.add_argument("--document-only", action="store_true",
                         help="rebuild REPRODUCTION.md from the runs already in --work (e.g. after editing "
                              "docs/reproduction_notes.md), without running anything")
@@ -181,21 +225,31 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"gtsweep.reproduce: no finished reproduction in {work} (missing {record.name})")
         saved = json.loads(record.read_text())
         results = [{**r, "output": Path(r["output"])} for r in saved["presets"]]
-        print(f"wrote {write_document(results, saved['size'], Path(args.docs), args.alpha)}")
+        sequential = _replay(results, args.alpha) if saved["size"] == "decide" else None
+        tuning = tuning_fingerprint() if saved["size"] != "tiny" else None  # tiny: not dataset=survey
+        print(f"wrote {write_document(results, saved['size'], Path(args.docs), args.alpha, sequential, tuning)}")
         return 0
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
-    uri = f"sqlite:///{work / 'mlflow.db'}"
-    results = []
-    for preset in args.presets:
-        print(f"gtsweep.reproduce: {preset} ...", flush=True)
-        results.append(run_preset(preset, [*SIZES[args.size], *PRESET_OVERRIDES.get(preset, [])], work, uri))
-        r = results[-1]
-        print(f"  {r['cells']} cells, {r['wall_s']:.0f} s, peak {r['peak_mb']:.0f} MB, "
-              f"cache hit rate {r['cache_hit_rate']:.2f}, {r['mlflow_runs']} MLflow runs", flush=True)
-    write_atomically(record, json.dumps({"size": args.size, "presets": results}, default=str, indent=1))
-    print(f"wrote {write_document(results, args.size, Path(args.docs), args.alpha)}")
+    sequential = None
+    if args.size == "decide":
+        sequential = Sequential(args.alpha)
+        results = runs.run_rounds(args.presets, sequential.update, work, log=lambda m: print(m, flush=True))
+    else:
+        results = runs.run_fixed(args.presets, SIZES[args.size], work, log=lambda m: print(m, flush=True))
+    runs.save(record, {"size": args.size, "presets": results})
+    tuning = tuning_fingerprint() if args.size != "tiny" else None
+    print(f"wrote {write_document(results, args.size, Path(args.docs), args.alpha, sequential, tuning)}")
     return 0
+
+
+def _replay(results: list[dict], alpha: float) -> Sequential:
+    """The sequential verdicts of saved rounds, judged again look by look."""
+    sequential, latest = Sequential(alpha), {}
+    for k in range(max(r["round"] for r in results)):
+        latest.update({r["preset"]: r for r in results if r["round"] == k + 1})
+        sequential.update(k, latest)
+    return sequential
 
 
 if __name__ == "__main__":

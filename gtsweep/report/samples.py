@@ -4,18 +4,20 @@ A table entry (one number of a survey table) is made of one or more cells, e.g. 
 transform (survey Table 6 averages over transforms with equal weight). Its value is, per stratum (transform; and
 repeat in a multirun), the cell's aggregate over its views, then the mean over strata; its interval and the
 paired tests between entries come from the cells' per-view rows (``cells/<cell>.csv``, or the child runs'
-artifacts in MLflow) with :mod:`gtsweep.evaluation.statistics`, resampling or swapping whole images (clusters:
+artifacts in MLflow) with :mod:`gtsweep.evaluation.statistics`, over whole images (clusters:
 texture + image or pair id), never by averaging intervals. Two entries are matched on the images both have.
 
-An entry of one cell shows the cell's own ``<metric>_ci_low/_ci_high`` (the numbers of results.csv and MLflow:
-Wilson for a rate, a bootstrap over views otherwise); an entry over several cells, strengths or repeats a Wilson
-interval for a success rate with one view per pair, else the bootstrap over images (a rate of exactly 0 or 1
-leaves a bootstrap nothing to resample: Wilson with one trial per image instead); without per-view rows no
-interval.
+An entry's interval is over images, from its cells' per-view rows
+(:func:`~gtsweep.evaluation.statistics.clustered_interval`: a t interval; for a rate a design-effect Wilson
+interval, one formula for every rate including 0 and 1, Wilson's own with one view per pair); an entry of one
+cell without per-view rows shows the cell's own ``<metric>_ci_low/_ci_high`` (results.csv, MLflow); else none.
+Paired tests are t tests over images; the ties of a table are Holm-corrected across the table's entries.
 """
 from __future__ import annotations
 
 import math
+import re
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,8 +37,25 @@ def load_views(source: str | Path) -> dict[str, pd.DataFrame]:
     return {p.stem: pd.read_csv(p) for p in sorted(Path(source).glob("cells/*.csv"))}
 
 
-def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None) -> pd.DataFrame | None:
-    """Columns cluster, stratum, sum, count of an entry's views (None when a cell's rows are missing)."""
+def half_of(image: str, texture_rank: int = 0) -> int:
+    """0 or 1: which half of the images an image (``texture/.../k``) belongs to: the parity of k plus its texture's
+    rank among the data set's textures (sorted by name). Stable when images are added, balanced within each
+    texture, and with one image per texture the textures alternate (3 + 3 of the survey's six). A rival or "best"
+    picked from the data is picked on half 0 and tested on half 1 (docs/statistics_design.md)."""
+    digits = re.findall(r"\d+", str(image))
+    number = int(digits[-1]) if digits else zlib.crc32(str(image).encode())
+    return (number + texture_rank) % 2
+
+
+def _halves(rows: pd.DataFrame) -> np.ndarray:
+    rank = {t: i for i, t in enumerate(sorted(rows["texture"].astype(str).unique()))}
+    return np.array([half_of(i, rank[t]) for i, t in zip(rows["image"].astype(str), rows["texture"].astype(str))])
+
+
+def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
+          half: int | None = None) -> pd.DataFrame | None:
+    """Columns cluster, stratum, sum, count of an entry's views (None when a cell's rows are missing); with
+    ``half``, only that half's clusters (:func:`half_of`)."""
     declared = schema.METRICS[metric]
     parts = []
     for cell in cells.itertuples(index=False):
@@ -55,9 +74,10 @@ def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None)
             den = pd.Series(1.0, index=rows.index)
         keep = np.isfinite(num) & np.isfinite(den)
         repeat = rows["repeat"].astype(str) if "repeat" in rows else ""
-        parts.append(pd.DataFrame({"cluster": rows["texture"].astype(str) + "/" + rows["image"].astype(str),
-                                   "stratum": f"{cell.transform}|" + repeat, "sum": num.where(keep, 0.0),
-                                   "count": den.where(keep, 0.0)}))
+        cluster = rows["texture"].astype(str) + "/" + rows["image"].astype(str)
+        part = pd.DataFrame({"cluster": cluster, "stratum": f"{cell.transform}|" + repeat,
+                             "sum": num.where(keep, 0.0), "count": den.where(keep, 0.0)})
+        parts.append(part if half is None else part[_halves(rows) == half])
     return pd.concat(parts, ignore_index=True) if parts else None
 
 
@@ -70,24 +90,30 @@ def _matrices(long: pd.DataFrame, clusters=None, strata=None) -> tuple[np.ndarra
     return pick("sum"), pick("count")
 
 
+def matrices(cells: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
+             half: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(sums, counts), clusters x strata, of an entry's per-view rows; None without them."""
+    if not views or metric not in schema.METRICS or not len(cells):
+        return None
+    long = _long(cells, metric, views, where, half)
+    return None if long is None or long.empty else _matrices(long)
+
+
 def estimate(cells: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
-             seed: int = 0) -> tuple[float, float, float]:
+             half: int | None = None, confidence: float = statistics.CONFIDENCE) -> tuple[float, float, float]:
     """``(value, low, high)`` of an entry made of ``cells`` (rows of :func:`~gtsweep.report.tables.frame`):
-    from the per-view rows when every cell has them, else a one-cell entry's own interval, else none."""
+    from the per-view rows when every cell has them (:func:`~gtsweep.evaluation.statistics.clustered_interval`:
+    a t interval over images, a design-effect Wilson interval for a rate), else a one-cell entry's own interval,
+    else none."""
     declared = schema.METRICS.get(metric)
-    long = _long(cells, metric, views, where) if views and declared is not None and len(cells) else None
-    own = len(cells) == 1 and where is None and f"{metric}_ci_low" in cells  # one cell: its own interval
-    if long is not None and not (own and long["stratum"].nunique() == 1):
+    own = len(cells) == 1 and where is None and half is None and f"{metric}_ci_low" in cells
+    long = _long(cells, metric, views, where, half) if views and declared is not None and len(cells) else None
+    if long is not None and not long.empty:
         sums, counts = _matrices(long)
         value = statistics.clustered_mean(sums, counts)
         if not declared.interval:
             return value, math.nan, math.nan
-        if declared.aggregation == "rate" and sums.shape[1] == 1 and counts.max() <= 1:  # one view per pair
-            return (value, *statistics.wilson_interval(int(sums.sum()), int(counts.sum())))
-        if declared.aggregation == "rate" and value in (0.0, 1.0):  # no variation for a bootstrap to resample:
-            clusters = int((counts.sum(axis=1) > 0).sum())  # Wilson with one trial per image (conservative)
-            return (value, *statistics.wilson_interval(int(round(value * clusters)), clusters))
-        return (value, *statistics.clustered_interval(sums, counts, seed=seed))
+        return (value, *statistics.clustered_interval(sums, counts, confidence, declared.aggregation == "rate"))
     values = pd.to_numeric(cells[metric], errors="coerce") if metric in cells else pd.Series(dtype=float)
     value = float(values.mean()) if values.notna().any() else math.nan
     if own:
@@ -97,14 +123,16 @@ def estimate(cells: pd.DataFrame, metric: str, views: Views | None, where: Mappi
 
 
 def compare(a: pd.DataFrame, b: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
-            where_b: Mapping | None = None, seed: int = 0) -> statistics.Comparison | None:
-    """Paired test of entry A against entry B on the images both have: an exact McNemar test for a success rate
-    with one view per pair on one transform (survey Tables 4, 5, 7), else a permutation test swapping A and B
-    within images (:func:`~gtsweep.evaluation.statistics.clustered_difference`). None without per-view rows.
-    ``where`` selects A's views (and B's, unless ``where_b`` does), e.g. a reference feature count."""
+            where_b: Mapping | None = None, half: int | None = None,
+            confidence: float = statistics.CONFIDENCE) -> statistics.Comparison | None:
+    """Paired test of entry A against entry B on the images (pairs) both have: the paired t over images of
+    :func:`~gtsweep.evaluation.statistics.clustered_difference` (one method for rates, means and ratios). None
+    without per-view rows. ``where`` selects A's views (and B's, unless ``where_b`` does), e.g. a reference
+    feature count; ``half`` restricts both to one half of the images (:func:`half_of`)."""
     if not views or metric not in schema.METRICS:
         return None
-    long_a, long_b = _long(a, metric, views, where), _long(b, metric, views, where if where_b is None else where_b)
+    long_a = _long(a, metric, views, where, half)
+    long_b = _long(b, metric, views, where if where_b is None else where_b, half)
     if long_a is None or long_b is None:
         return None
     clusters = sorted(set(long_a["cluster"]) & set(long_b["cluster"]))
@@ -112,17 +140,44 @@ def compare(a: pd.DataFrame, b: pd.DataFrame, metric: str, views: Views | None, 
     if not clusters:
         return None
     (sa, ca), (sb, cb) = _matrices(long_a, clusters, strata), _matrices(long_b, clusters, strata)
-    single = len(strata) == 1 and ca.max() <= 1 and cb.max() <= 1
-    if schema.METRICS[metric].aggregation == "rate" and single:
-        with np.errstate(invalid="ignore"):
-            return statistics.mcnemar_exact(np.where(ca > 0, sa, np.nan)[:, 0], np.where(cb > 0, sb, np.nan)[:, 0])
-    return statistics.clustered_difference(sa, ca, sb, cb, seed=seed)
+    return statistics.clustered_difference(sa, ca, sb, cb, confidence, schema.METRICS[metric].aggregation == "rate")
+
+
+def against(cells: pd.DataFrame, metric: str, views: Views | None, target: float, where: Mapping | None = None,
+            confidence: float = statistics.CONFIDENCE) -> statistics.Comparison | None:
+    """An entry against a fixed number (e.g. the survey's "about 1.5"): value - ``target`` with the entry's
+    cluster-robust SE and a t test; None without per-view rows."""
+    pair = matrices(cells, metric, views, where)
+    if pair is None:
+        return None
+    e = statistics.clustered_estimate(*pair)
+    if e.n < 2:
+        return None
+    return statistics.from_estimate("t over images", e.value, e.se, e.df, e.n, confidence, target)
+
+
+def rate_within(cells: pd.DataFrame, metric: str, views: Views | None, band: tuple[float, float],
+                confidence: float) -> statistics.Comparison | None:
+    """A rate against a band ``[low, high]`` (e.g. the survey's "about 10 % to 15 %"): the Comparison's interval
+    is the rate's design-effect Wilson interval at ``confidence`` minus the band's centre, so that its decision
+    is by interval (no SE: a rate of 0 has none)."""
+    pair = matrices(cells, metric, views)
+    if pair is None:
+        return None
+    value = statistics.clustered_mean(*pair)
+    low, high = statistics.clustered_interval(*pair, confidence, rate=True)
+    centre = (band[0] + band[1]) / 2
+    n = int((pair[1].sum(axis=1) > 0).sum())
+    return statistics.Comparison("design-effect Wilson interval", value - centre, math.nan, low - centre,
+                                 high - centre, n=n)
 
 
 @dataclass
 class Ties:
-    """The entries of a table statistically tied with its best: a paired test of each against the best at
-    ``alpha`` (:func:`compare`) is not significant."""
+    """The entries of a table statistically tied with its best: the paired test of each against the best
+    (:func:`compare`), Holm-corrected across the table's list (family-wise error ``alpha``), is not significant.
+    The best is the table's descriptive best on the same images, so the list says "the data cannot rank these
+    below the best", never "these are as good"."""
 
     metric: str
     alpha: float
@@ -143,8 +198,8 @@ class Ties:
         if len(self.tied) > 8:  # a long list: name the few the test sets apart instead
             tied = f"{len(self.tied)} tied with it (all but {', '.join(apart)})" if apart else \
                 f"all {len(self.tied)} others tied with it"
-        return (f"best {self.metric}: {self.best} {self.best_value:.2f}; {tied} (paired test vs the best, "
-                f"alpha = {self.alpha:g}; of {len(self.tests)} tested)")
+        return (f"best {self.metric}: {self.best} {self.best_value:.2f}; {tied} (paired t vs the best, Holm over "
+                f"{len(self.tests)} tests, alpha = {self.alpha:g})")
 
 
 def tied_with_best(entries: Mapping[str, pd.DataFrame], metric: str, views: Views | None, alpha: float,
@@ -165,6 +220,8 @@ def tied_with_best(entries: Mapping[str, pd.DataFrame], metric: str, views: View
             ties.untested.append(label)
             continue
         ties.tests[label] = result
-        if statistics.verdict(result, alpha) == statistics.INCONCLUSIVE:
-            ties.tied.append(label)
+    labels = list(ties.tests)
+    adjusted = statistics.holm([ties.tests[k].p_value if math.isfinite(ties.tests[k].p_value) else 1.0
+                                for k in labels])
+    ties.tied = [k for k, p in zip(labels, adjusted) if not (p < alpha and ties.tests[k].difference != 0)]
     return ties

@@ -1,10 +1,11 @@
 """Rebuild the survey's tables from a sweep, with the paper's number beside ours: ``python -m gtsweep.report``.
 
 Each table is built from whatever cells a sweep has (its result files, or its MLflow runs) and printed in the
-paper's layout: a cell reads ``ours ±half-width (paper)``, the half-width of our 95 % interval (Wilson for a success
-rate, a seeded bootstrap over images otherwise; :mod:`gtsweep.report.samples`); ``NA`` marks a pairing that cannot
-be evaluated. Detection metrics are averaged with equal weight per transform type, as in the survey (section 5).
-Below each table: the best entry and those statistically tied with it (a paired test against the best at
+paper's layout: a cell reads ``ours [low, high] (paper)``, the ends of our 95 % interval (Wilson for a success
+rate, a seeded bootstrap over images otherwise; :mod:`gtsweep.report.samples`), which need not be symmetric about
+ours; ``NA`` marks a pairing that cannot be evaluated. Every column header (or the title, where the columns are
+methods) names its unit. Detection metrics are averaged with equal weight per transform type, as in the survey
+(section 5). Below each table: the best entry and those statistically tied with it (a paired test against the best at
 ``--alpha``). Tables are written as Markdown, LaTeX and CSV (``<table>_values.csv``: the numbers, each interval's
 ends and the paper's number in columns), next to the plots of :mod:`gtsweep.report.plots`; ``cells`` lists every
 cell with each metric that :mod:`gtsweep.evaluation.schema` marks as reported. ``--by texture`` adds every table
@@ -31,6 +32,7 @@ PAPER_DIR = PACKAGE_DIR / "data" / "survey"
 METHODS = ("detector", "selector", "descriptor", "transform")
 ALPHA = 0.05  # significance level of the paired tests (report.alpha)
 BY = (None, "texture")  # report.by
+KPS_BEFORE = "#KPs before selection (keypoints per view)"
 
 
 def paper(name: str) -> pd.DataFrame:
@@ -38,11 +40,11 @@ def paper(name: str) -> pd.DataFrame:
 
 
 def fmt(ours: float, theirs=None, digits: int = 2, low: float = math.nan, high: float = math.nan) -> str:
-    """``ours ±half-width (paper)`` with the same number of digits (the half-width of the interval [low, high]
-    when there is one); NA where ours is missing."""
+    """``ours [low, high] (paper)`` with the same number of digits (the interval's ends as they are: a Wilson
+    interval [0.70, 1.00] around 1.00 is not ``1.00 ±0.15``); NA where ours is missing."""
     text = "NA" if _missing(ours) else f"{ours:.{digits}f}"
     if text != "NA" and not (_missing(low) or _missing(high)):
-        text += f" ±{(high - low) / 2:.{digits}f}"
+        text += f" {interval(low, high, digits)}"
     if _missing(theirs) or theirs == "":
         return text
     try:
@@ -50,6 +52,21 @@ def fmt(ours: float, theirs=None, digits: int = 2, low: float = math.nan, high: 
     except ValueError:
         theirs = str(theirs)
     return text if text == theirs == "NA" else f"{text} ({theirs})"
+
+
+def interval(low: float, high: float, digits: int = 2) -> str:
+    """``[0.70, 1.00]``: an interval's ends."""
+    return f"[{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def with_unit(name: str, unit: str) -> str:
+    """A column header with its unit: ``repeatability (share)``, ``time (s)``."""
+    return f"{name} ({unit})"
+
+
+def _unit(metric: str) -> str:
+    """A metric's unit as the schema declares it (``share``: a value in [0, 1])."""
+    return schema.METRICS[metric].unit
 
 
 def _number(value) -> float:
@@ -64,25 +81,27 @@ def _missing(value) -> bool:
 class Table:
     name: str
     title: str
-    cells: pd.DataFrame  # strings as shown: "ours ±half-width (paper)"
+    cells: pd.DataFrame  # strings as shown: "ours [low, high] (paper)"
     values: list[dict] = field(default_factory=list)  # the numbers: row, column, ours, ci_low, ci_high, paper
     ties: Ties | None = None
     note: str = ""  # a line below the table, e.g. the scale in mm (:func:`gtsweep.report.scale.annotate`)
 
-    def markdown(self) -> str:
+    def markdown(self, note: bool = False) -> str:
+        """The table, its title and its ties; ``note``: the line below it too (the table's file has it; a terminal
+        printing several tables prints the shared scale line once, after them)."""
         frame = self.cells.reset_index()
         header = [str(c) for c in frame.columns]
         lines = [f"**{self.title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(str(v) for v in row) + " |" for row in frame.itertuples(index=False)]
         if self.ties is not None and self.ties.describe():
             lines += ["", f"*{self.ties.describe()}*"]
-        if self.note:
+        if note and self.note:
             lines += ["", f"*{self.note}*"]
         return "\n".join(lines)
 
     def show(self, row: str, column: str, cells: pd.DataFrame, metric: str, paper_value=None, digits: int = 2,
              views: Views | None = None, where=None) -> str:
-        """The text of one entry made of ``cells`` (value ± half-width (paper)); its numbers go to ``values``."""
+        """The text of one entry made of ``cells`` (value [low, high] (paper)); its numbers go to ``values``."""
         value, low, high = estimate(cells, metric, views, where)
         theirs = None if _missing(paper_value) or paper_value == "" else paper_value
         self.values.append({"row": row, "column": column, "metric": metric, "ours": value, "ci_low": low,
@@ -144,8 +163,8 @@ def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str,
     if part.empty:
         return None
     theirs = paper(paper_file).set_index("detector")
-    detectors = _order(part["detector"].unique(), theirs.index)
-    descriptors = _order(part["descriptor"].unique(), theirs.columns)
+    detectors = paper_order(part["detector"].unique(), theirs.index)
+    descriptors = paper_order(part["descriptor"].unique(), theirs.columns)
     grid = pd.DataFrame(index=[shown_label(d) for d in detectors], columns=[shown_label(s) for s in descriptors])
     table = Table(name, f"{title} ({sample_note(part)})", grid)
     entries = {}
@@ -163,9 +182,9 @@ def _pairing_table(df: pd.DataFrame, transform: str, paper_file: str, name: str,
     return table
 
 
-def _order(names, paper_order) -> list[str]:
-    """Methods in the paper's order, the ones it did not have after them."""
-    rank = {n: i for i, n in enumerate(paper_order)}
+def paper_order(names, order) -> list[str]:
+    """Methods in the paper's ``order`` (of its labels), the ones it did not have after them."""
+    rank = {n: i for i, n in enumerate(order)}
     return sorted(names, key=lambda n: (rank.get(paper_label(n), len(rank)), n))
 
 
@@ -195,7 +214,7 @@ def table_selectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
         return None
     theirs = paper("table2_selector_repeatability.csv").set_index("detector")
     columns = {"none": "rep_no_selection", "nms": "rep_nms", "anms": "rep_anms", "bucketing": "rep_bucketing"}
-    detectors = _order(detection.index.get_level_values("detector").unique(), theirs.index)
+    detectors = paper_order(detection.index.get_level_values("detector").unique(), theirs.index)
     out = pd.DataFrame(index=[shown_label(d) for d in detectors])
     table = Table("table2_selectors", f"Survey Table 2: repeatability of selector-detector pairings "
                                       f"({sample_note(df[df['descriptor'].isna()])})", out)
@@ -203,11 +222,11 @@ def table_selectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
     for d in detectors:
         p = theirs.loc[paper_label(d)] if paper_label(d) in theirs.index else {}
         counts = detection.loc[d, "n_detected"] if "n_detected" in detection else pd.Series(dtype=float)
-        out.loc[shown_label(d), "#KPs before selection"] = fmt(counts.mean(), p.get("kps_before_selection"), 0)
+        out.loc[shown_label(d), KPS_BEFORE] = fmt(counts.mean(), p.get("kps_before_selection"), 0)
         for selector, column in columns.items():
-            cells = _detection_cells(df, d, selector)
-            out.loc[shown_label(d), f"Rep. {selector}"] = table.show(
-                shown_label(d), f"Rep. {selector}", cells, "repeatability", p.get(column), views=views) \
+            cells, header = _detection_cells(df, d, selector), with_unit(f"Rep. {selector}", _unit("repeatability"))
+            out.loc[shown_label(d), header] = table.show(
+                shown_label(d), header, cells, "repeatability", p.get(column), views=views) \
                 if len(cells) else fmt(math.nan, p.get(column))
             if len(cells):
                 entries[f"{shown_label(d)} {selector.upper()}"] = cells
@@ -233,8 +252,9 @@ def table_detectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
         record = {"detector": shown, "selector": row.selector.upper()}
         for column, metric in (("< 100 KPs", "few_keypoints"), ("repeatability", "repeatability"),
                                ("ambiguity", "ambiguity")):
+            column = with_unit(column, "share of views" if metric == "few_keypoints" else _unit(metric))
             record[column] = table.show(shown, column, cells, metric, said.get(metric), views=views)
-        record["time (s)"] = fmt(row.t_detect, None, 3)
+        record[with_unit("time", _unit("t_detect"))] = fmt(row.t_detect, None, 3)
         out.append(record)
     used = df[df["descriptor"].isna() & (df["status"] == "ok") & (df["selector"] != "none")]
     table.title = f"Survey Table 3: detectors, best selector ({sample_note(used)})"
@@ -258,12 +278,13 @@ def table_pairings(df: pd.DataFrame, views: Views | None = None, alpha: float = 
         p = theirs.loc[key] if key in theirs.index else {}
         cells, row = part[(part["detector"] == det) & (part["descriptor"] == desc)], shown_label(det)
         entries[_pair_label(det, desc)] = cells
-        out.append({"detector": row, "descriptor": shown_label(desc),
-                    "pose success": table.show(row, "pose success", cells, "pose_success", p.get("pose_success"),
-                                               views=views),
-                    "#correct matches": table.show(row, "#correct matches", cells, "n_correct",
-                                                   p.get("correct_matches"), 0, views),
-                    "precision": table.show(row, "precision", cells, "precision", p.get("precision"), views=views)})
+        record = {"detector": row, "descriptor": shown_label(desc)}
+        for column, metric, said, digits in (("pose success", "pose_success", p.get("pose_success"), 2),
+                                             ("#correct matches", "n_correct", p.get("correct_matches"), 0),
+                                             ("precision", "precision", p.get("precision"), 2)):
+            column = with_unit(column, "per view" if metric == "n_correct" else _unit(metric))
+            record[column] = table.show(row, column, cells, metric, said, digits, views)
+        out.append(record)
     table.cells = pd.DataFrame(out).set_index("detector")
     table.ties = tied_with_best(entries, "pose_success", views, alpha)
     return table
@@ -276,8 +297,9 @@ def table_reference_counts(df: pd.DataFrame, views: Views | None = None, alpha: 
     if part.empty:
         return None
     theirs = paper("table7_success_vs_reference_features.csv").set_index(["detector", "descriptor"])
-    table = Table("table7_reference_features", "Survey Table 7: success against number of reference features "
-                  f"({sample_note(part)})", pd.DataFrame())
+    table = Table("table7_reference_features", "Survey Table 7: pose success (share of pairs) against the number "
+                  f"of reference features (columns: reference features per image; {sample_note(part)})",
+                  pd.DataFrame())
     out, entries, top = [], {}, None
     for index, row in part.iterrows():
         key = (paper_label(row.detector), paper_label(row.descriptor))
@@ -296,8 +318,8 @@ def table_reference_counts(df: pd.DataFrame, views: Views | None = None, alpha: 
 
 
 def table_cells(summaries: list[dict]) -> Table | None:
-    """Every cell with each reported schema metric of its experiment (± the half-width of the cell's interval where
-    the schema gives one): a new metric needs no other edit here."""
+    """Every cell with each reported schema metric of its experiment, headed ``<metric> (<unit>)`` (the cell's
+    interval ``[low, high]`` where the schema gives one): a new metric needs no other edit here."""
     records, swept = [], swept_variants(summaries)
     for s in summaries:
         experiment, values = schema.experiment_of(s), s.get("metrics") or {}
@@ -312,8 +334,9 @@ def table_cells(summaries: list[dict]) -> Table | None:
     cells = pd.DataFrame.from_records(records)
     metrics = schema.ordered(c for c in cells.columns if c in schema.METRICS)
     cells = cells[[c for c in cells.columns if c not in metrics] + metrics].fillna("").set_index("detector")
-    return Table("cells", "Every cell: the reported metrics of its experiment, aggregated over its views "
-                 f"({sample_note(frame(summaries))})", cells)
+    cells = cells.rename(columns={m: with_unit(m, _unit(m)) for m in metrics})
+    return Table("cells", "Every cell: the reported metrics of its experiment (unit in each header), aggregated "
+                 f"over its views, [95 % interval] where there is one ({sample_note(frame(summaries))})", cells)
 
 
 def build_tables(summaries: list[dict], views: Views | None = None, alpha: float = ALPHA) -> list[Table]:
@@ -335,9 +358,9 @@ def _survey_tables(summaries: list[dict], views: Views | None, alpha: float) -> 
     candidates = [
         table_selectors(df, views, alpha), table_detectors(df, views, alpha),
         _pairing_table(df, "incremental", "table4_success_incremental.csv", "table4_incremental",
-                       "Survey Table 4: pose success on incremental pairs", views, alpha),
+                       "Survey Table 4: pose success (share of pairs) on incremental pairs", views, alpha),
         _pairing_table(df, "absolute", "table5_success_absolute.csv", "table5_absolute",
-                       "Survey Table 5: pose success on absolute pairs", views, alpha),
+                       "Survey Table 5: pose success (share of pairs) on absolute pairs", views, alpha),
         table_pairings(df, views, alpha), table_reference_counts(df, views, alpha),
     ]
     return [t for t in candidates if t is not None]
@@ -349,7 +372,7 @@ def write_tables(tables: list[Table], out_dir: str | Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     files = []
     for table in tables:
-        texts = [(".md", table.markdown()), (".tex", table.latex()), (".csv", table.cells.to_csv())]
+        texts = [(".md", table.markdown(note=True)), (".tex", table.latex()), (".csv", table.cells.to_csv())]
         if table.values:
             texts.append(("_values.csv", pd.DataFrame(table.values).to_csv(index=False)))
         for suffix, text in texts:

@@ -252,6 +252,7 @@ def config_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict | Non
     from mlflow.exceptions import MlflowException
     from mlflow.tracking import MlflowClient
 
+    quiet_mlflow()
     client = MlflowClient(tracking_uri(None) if uri is None else uri)
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -268,6 +269,7 @@ def views_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict:
     import pandas as pd
     from mlflow.tracking import MlflowClient
 
+    quiet_mlflow()
     client = MlflowClient(tracking_uri(None) if uri is None else uri)
     parent = client.get_run(parent_run_id)
     runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",

@@ -18,8 +18,12 @@ PLUMBING = ("hydra.", "++hydra", "resume=", "dataset.", "runner.", "mlflow.", "c
 
 
 def quiet_mlflow() -> None:
-    """MLflow's and alembic's INFO lines (store creation, migrations) are noise in a sweep's output."""
+    """MLflow's and alembic's INFO lines (store creation, migrations) and its artifact download progress bars (one
+    per file: a report from MLflow fetches every cell's rows) are noise in a sweep's output."""
     import logging
+    import os
+
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")  # read at each download
 
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(logging.WARNING)

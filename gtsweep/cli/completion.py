@@ -1,0 +1,139 @@
+"""Bash completion of ``gtsweep`` and ``python -m gtsweep``: config groups, their options (``tuned/`` ones
+included), list syntax, then Hydra's own completion for config keys.
+
+``eval "$(gtsweep -sc install=bash)"`` defines a bash function and registers it for ``gtsweep`` and for
+``python``/``python3`` (a ``python`` line that is not ``python -m gtsweep`` goes to the completion that was
+registered before, else to file names). On TAB the function runs ``<command> -sc query=bash`` with ``COMP_LINE``
+and ``COMP_POINT`` (as Hydra's script does); :func:`query` answers the value of a config group itself:
+
+- ``detector=s`` -> ``detector=sift``, ``detector=surf``; ``detector=tuned/`` -> ``detector=tuned/sift``, ...
+- ``detector=[s`` and ``detector=[sift,o`` -> ``detector=[sift,orb`` ... (options already in the list left out);
+  Hydra's choice sweep ``detector=sift,o`` the same way.
+
+Any other word (``dataset.n_``, ``det``) is left to Hydra's completion (its config keys). Hydra's own script
+needs an executable and removes ``=`` from the shell's ``COMP_WORDBREAKS``; this one leaves the shell's settings
+alone and hands bash each candidate from where bash's own current word starts (bash splits ``detector=s`` at
+``=``).
+"""
+from __future__ import annotations
+
+import os
+import shlex
+
+from gtsweep.cli.search import configs
+
+#: ``-sc install=bash`` prints this script.
+SCRIPT = r"""_gtsweep_completion()
+{
+    local command=("${COMP_WORDS[0]}")
+    if [[ "${COMP_WORDS[0]##*/}" == python* ]]; then
+        if [[ "${COMP_WORDS[1]}" != "-m" || "${COMP_WORDS[2]}" != "gtsweep" ]]; then
+            if [[ -n "$_GTSWEEP_PYTHON_COMPLETION" ]]; then
+                "$_GTSWEEP_PYTHON_COMPLETION" "$@"
+            fi
+            return
+        fi
+        command=("${COMP_WORDS[0]}" -m gtsweep)
+    fi
+    # the whole word before the cursor, and the part of it that bash replaces (bash splits at = and :)
+    local word="${COMP_LINE:0:COMP_POINT}"
+    word="${word##*[[:space:]]}"
+    local cut=$(( ${#word} - ${#COMP_WORDS[COMP_CWORD]} ))
+    local choice
+    COMPREPLY=()
+    for choice in $(COMP_LINE="$COMP_LINE" COMP_POINT="$COMP_POINT" "${command[@]}" -sc query=bash 2>/dev/null); do
+        [[ "$choice" == "$word"* ]] && COMPREPLY+=("${choice:cut}")
+    done
+}
+if [[ -z "${_GTSWEEP_PREVIOUS+set}" ]]; then  # installed twice: keep what was there the first time
+    _GTSWEEP_PREVIOUS=$(complete -p python python3 2>/dev/null)
+    _GTSWEEP_PYTHON_COMPLETION=$(sed -n 's/.* -F \([^ ]*\) .*/\1/p' <<< "$_GTSWEEP_PREVIOUS" | head -n 1)
+fi
+complete -o nospace -o default -F _gtsweep_completion gtsweep python python3
+"""
+UNINSTALL = """complete -r gtsweep python python3 2>/dev/null
+eval "$_GTSWEEP_PREVIOUS"
+unset -f _gtsweep_completion
+unset _GTSWEEP_PREVIOUS _GTSWEEP_PYTHON_COMPLETION
+"""
+#: Hydra's prefixes of an override: append, delete, force-add.
+PREFIXES = ("++", "+", "~")
+
+
+def current_word(line: str, point: int | None = None) -> str:
+    """The word under the cursor: the text of ``line`` up to ``point`` after its last unquoted blank."""
+    before = line[:len(line) if point is None else point]
+    if not before or before[-1].isspace():
+        return ""
+    try:
+        return shlex.split(before)[-1]
+    except ValueError:  # an open quote: the raw text after the last blank
+        return before.split()[-1]
+
+
+def group_options(group: str, argv=(), typed: str = "") -> list[str]:
+    """The options of a config group; a subgroup as ``tuned/`` (like a folder), or its options (``tuned/sift``)
+    once ``typed`` (the value typed so far) names it."""
+    found = configs(argv)
+    names = list(found.options(group))
+    for subgroup in found.groups(group):
+        folder = subgroup[len(group) + 1:] + "/"
+        names += [folder + name for name in found.options(subgroup)] if typed.startswith(folder) else [folder]
+    return sorted(set(names))
+
+
+def top_groups(argv=()) -> list[str]:
+    """The config groups one can select on the command line (Hydra's own left out)."""
+    return sorted({g.split("/")[0] for g in configs(argv).groups() if g.split("/")[0] != "hydra"})
+
+
+def value_candidates(word: str, argv=()) -> list[str] | None:
+    """Completions of ``group=value`` (a single value, ``[a,b`` list or ``a,b`` sweep), whole words; None when
+    ``word`` is not a config group's value."""
+    key, equals, value = word.partition("=")
+    group = key
+    for prefix in PREFIXES:
+        group = group.removeprefix(prefix)
+    if not equals or group not in top_groups(argv):
+        return None
+    opening = "[" if value.startswith("[") else ""
+    *chosen, last = value[len(opening):].split(",")
+    head = f"{key}={opening}" + "".join(f"{name}," for name in chosen)
+    return [head + name for name in group_options(group, argv, last) if name.startswith(last) and name not in chosen]
+
+
+def query(line: str, point: int | None = None) -> list[str] | None:
+    """Candidates (whole words) for the word under the cursor of ``line``, a ``gtsweep`` or ``python -m gtsweep``
+    command line; None when Hydra's completion should answer."""
+    word = current_word(line, point)
+    try:
+        argv = shlex.split(line[:len(line) if point is None else point])
+    except ValueError:  # an open quote
+        argv = line.split()
+    start = 3 if argv[1:3] == ["-m", "gtsweep"] else 1  # the command's own words
+    return value_candidates(word, argv[start:])
+
+
+def handled(argv: list[str]) -> bool:
+    """Answer ``-sc install=bash``, ``-sc uninstall=bash`` and ``-sc query=bash`` (a group's value) here; True
+    when done, False to leave the command line to Hydra."""
+    if len(argv) != 2 or argv[0] not in ("-sc", "--shell-completion"):
+        return False
+    if argv[1] == "install=bash":
+        print(SCRIPT, end="")
+        return True
+    if argv[1] == "uninstall=bash":
+        print(UNINSTALL, end="")
+        return True
+    if argv[1] != "query=bash" or "COMP_LINE" not in os.environ:
+        return False
+    point = os.environ.get("COMP_POINT", "")
+    line = os.environ["COMP_LINE"]
+    candidates = query(line, int(point) if point.isdigit() else None)
+    if candidates is None:  # Hydra answers; it reads "python -m gtsweep" as two arguments
+        words = line.split(maxsplit=3)
+        if words[1:3] == ["-m", "gtsweep"]:
+            os.environ["COMP_LINE"] = " ".join(["gtsweep", *words[3:]]) + (" " if line.endswith(" ") else "")
+        return False
+    print("\n".join(candidates))
+    return True

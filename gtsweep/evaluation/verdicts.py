@@ -1,0 +1,134 @@
+"""Verdicts of pre-stated hypotheses: each survey finding is a set of comparisons, each with a claim and a margin.
+
+A comparison's ``difference`` is oriented so that a positive value is the survey's direction (the caller negates
+"less" claims). Kinds of claim (``margin`` delta > 0, fixed from the survey's wording or numbers, never ours):
+
+- :data:`BEATS` "A is better than B": *holds* when A - B > 0, *fails* when A - B < 0, *equivalent* when
+  -delta < A - B < delta (two one-sided tests, TOST), each at level ``alpha``;
+- :data:`AMONG` "A is among the best (lowest)", a rank claim against the best rival: *holds* when A is better,
+  *equivalent* when tied within delta (which supports the claim: A ranks with the best), *fails* only when A is
+  worse by more than delta;
+- :data:`BELOW` "A - B stays below delta" (e.g. success stops growing): *holds* when A - B < delta, *fails*
+  when A - B > delta (one-sided tests at the margin);
+- :data:`WITHIN` "A is about x": *holds* when -delta < A - x < delta (TOST), *fails* when it lies outside.
+
+The finding's verdict: *fails* when any comparison's failure test is significant after Holm's correction across
+the finding's comparisons; *holds* when every comparison holds (intersection-union test: each at ``alpha``, no
+correction needed, Berger 1982); *equivalent* when every comparison holds or is equivalent and at least one is
+equivalent; else *undecided*. BELOW and WITHIN claims are equivalence claims: their *holds* already means
+"within the margin", they never read *equivalent*.
+
+Comparisons with a standard error use t tests on its degrees of freedom; comparisons with only an interval
+(a bootstrap over pairings, a rate's Wilson interval) are decided by their (1 - 2 alpha) interval, which is the
+same one-sided level alpha (and, for one comparison, the same as Holm).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from gtsweep.evaluation.statistics import Comparison, holm
+
+BEATS, AMONG, BELOW, WITHIN = "beats", "among", "below", "within"
+HOLDS, FAILS, EQUIVALENT, UNDECIDED = "holds", "fails", "equivalent", "undecided"
+DECIDED = (HOLDS, FAILS, EQUIVALENT)
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One comparison of a finding: its label, the oriented comparison, the kind of claim and its margin."""
+
+    label: str
+    comparison: Comparison
+    kind: str
+    margin: float
+
+    def p_values(self) -> tuple[float, float, float]:
+        """(p of *holds*, p of *fails*, p of *equivalent*), each one-sided; 1.0 where not applicable."""
+        c, delta = self.comparison, self.margin
+        d = c.centre if math.isfinite(c.centre) else c.difference
+        if not math.isfinite(d):
+            return 1.0, 1.0, 1.0
+        if math.isfinite(c.se):  # t tests; against 0 the exact test where the comparison has one
+            above = lambda x: c.p_greater if x == 0 and math.isfinite(c.p_greater) else \
+                _p_above(d, c.se, c.df, x)  # noqa: E731  p of "d > x"
+            below = lambda x: c.p_less if x == 0 and math.isfinite(c.p_less) else \
+                _p_above(-d, c.se, c.df, -x)  # noqa: E731  p of "d < x"
+        elif math.isfinite(c.low) and math.isfinite(c.high):  # interval at 1 - 2 alpha: 0 when it excludes
+            above = lambda x: 0.0 if c.low > x else 1.0  # noqa: E731
+            below = lambda x: 0.0 if c.high < x else 1.0  # noqa: E731
+        else:
+            return 1.0, 1.0, 1.0
+        inside = max(above(-delta), below(delta))
+        if self.kind == BEATS:
+            return above(0.0), below(0.0), inside
+        if self.kind == AMONG:
+            return above(0.0), below(-delta), inside
+        if self.kind == BELOW:
+            return below(delta), above(delta), 1.0
+        if self.kind == WITHIN:
+            return inside, min(above(delta), below(-delta)), 1.0
+        raise ValueError(f"unknown kind of claim {self.kind!r}")
+
+
+def _p_above(d: float, se: float, df: int, x: float) -> float:
+    """One-sided t p-value of "the difference exceeds x"; a zero SE is certainty."""
+    if se > 0:
+        return float(stats.t.sf((d - x) / se, max(df, 1)))
+    return 0.0 if d > x else 1.0
+
+
+@dataclass(frozen=True)
+class Verdict:
+    verdict: str
+    tests: tuple[Claim, ...]
+    adjusted_fail: tuple[float, ...]  # Holm-adjusted p of each comparison's failure
+    alpha: float
+
+    def parts(self) -> list[str]:
+        """Per comparison: which of holds / equivalent / fails its own test reached."""
+        out = []
+        for test, p_fail in zip(self.tests, self.adjusted_fail):
+            p_hold, _, p_equiv = test.p_values()
+            out.append(FAILS if p_fail < self.alpha else HOLDS if p_hold < self.alpha else
+                       EQUIVALENT if p_equiv < self.alpha else UNDECIDED)
+        return out
+
+
+def decide(tests: list[Claim], alpha: float) -> Verdict:
+    """The finding's verdict from its comparisons (rules in the module docstring)."""
+    if not tests:
+        return Verdict(UNDECIDED, (), (), alpha)
+    p = np.array([t.p_values() for t in tests], dtype=np.float64)
+    adjusted = holm(p[:, 1])
+    holds, equivalent = p[:, 0] < alpha, p[:, 2] < alpha
+    if np.any(adjusted < alpha):
+        verdict = FAILS
+    elif holds.all():
+        verdict = HOLDS
+    elif (holds | equivalent).all():
+        verdict = EQUIVALENT
+    else:
+        verdict = UNDECIDED
+    return Verdict(verdict, tuple(tests), tuple(float(x) for x in adjusted), alpha)
+
+
+def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
+    """How many clusters (images or pairs) this comparison would need for its nearest verdict at the observed
+    effect and SE (normal approximation, ``power``): n (z_alpha + z_power)² / z_observed² for the smallest
+    distance of the estimate from a decision boundary. NaN without an SE or with the estimate on a boundary."""
+    c = test.comparison
+    if not (math.isfinite(c.se) and c.se > 0 and c.n > 1 and math.isfinite(c.difference)):
+        return math.nan
+    d, delta = (c.centre if math.isfinite(c.centre) else c.difference), test.margin
+    if test.kind in (BEATS, AMONG):  # heading for equivalence inside the margin, else for beyond 0 (or -delta)
+        distance = delta - abs(d) if abs(d) < delta else abs(d) - delta if test.kind == AMONG and d < 0 else abs(d)
+    else:
+        distance = abs(d - delta) if test.kind == BELOW else abs(delta - abs(d))
+    if distance <= 0:
+        return math.nan
+    z = stats.norm.ppf(1 - alpha) + stats.norm.ppf(power)
+    return float(c.n * (z * c.se / distance) ** 2)

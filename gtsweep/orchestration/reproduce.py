@@ -1,0 +1,148 @@
+"""Run the survey's table presets, at one size or in rounds of growing counts (``--size decide``).
+
+Each preset runs as its own ``python -m gtsweep`` process; its wall time, peak memory (resident memory of its
+whole process tree, sampled), keypoint cache hit rate and number of MLflow runs are recorded. In rounds
+(:data:`ROUNDS`), round k runs only the presets that ``needed`` (the caller's judgement of which findings are
+still undecided, see :mod:`gtsweep.report.sequential`) names, at round k's counts per texture. The keypoint cache
+is shared by every round, and a data set's first n views are the same for any larger count
+(``tests/test_survey.py`` checks it), so a round pays detection only for its new images.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from gtsweep.core.atomic import write_atomically
+from gtsweep.core.memory import PeakMemory
+
+PRESETS = ("table2_selectors", "table3_detectors", "table4_incremental", "table5_absolute", "table6_pairings",
+           "table7_reference_features")
+#: Fixed data set sizes (per texture). The table presets select dataset=survey (1288x964 views, capture physics);
+#: "hour" reduces its counts (1 synthetic image, 6 + 6 pairs per texture) to about an hour on 2 cores, "presets"
+#: keeps the presets' stated counts (10 synthetic images, 20 + 20 pairs; several hours), "full" is the survey's
+#: protocol (100 + 100 + 100; days on 2 cores, hours on a cluster). "tiny" is for tests.
+SIZES = {
+    "tiny": ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "dataset.n_synthetic=1",
+             "dataset.n_incremental=2", "dataset.n_absolute=2"],
+    "hour": ["dataset=survey", "dataset.n_synthetic=1", "dataset.n_incremental=6", "dataset.n_absolute=6"],
+    "presets": ["dataset=survey"],
+    "full": ["dataset=survey", "dataset.n_synthetic=100", "dataset.n_incremental=100", "dataset.n_absolute=100"],
+}
+#: ``--size decide``: counts per texture of each round, (synthetic images, incremental pairs, absolute pairs),
+#: ending at the survey's full protocol (section 5: 100 of each per texture).
+ROUNDS = ((1, 6, 6), (2, 12, 12), (4, 25, 25), (8, 50, 50), (16, 100, 100), (100, 100, 100))
+FULL = (100, 100, 100)
+#: Table 2 evaluates without selection (hundreds of thousands of keypoints): one image per texture, as the survey
+#: ("for this experiment we evaluate a single test image per type of ground texture", 4.1).
+PRESET_OVERRIDES = {"table2_selectors": ["dataset.n_synthetic=1"]}
+#: Which count of a round each preset's findings rest on (its clusters): index into a ROUNDS entry.
+KIND = {"table2_selectors": 0, "table3_detectors": 0, "table4_incremental": 1, "table5_absolute": 2,
+        "table6_pairings": 0, "table7_reference_features": 1}
+
+
+def counts(preset: str, counts_per_texture) -> int:
+    """The count per texture a preset's findings rest on in a round (Table 2: always 1, the survey's)."""
+    return 1 if preset == "table2_selectors" else int(counts_per_texture[KIND[preset]])
+
+
+def fraction(preset: str, counts_per_texture) -> float:
+    """Information fraction of a preset in a round: its count over the survey's full count."""
+    full = 1 if preset == "table2_selectors" else FULL[KIND[preset]]
+    return min(counts(preset, counts_per_texture) / full, 1.0)
+
+
+def round_overrides(counts_per_texture) -> list[str]:
+    synthetic, incremental, absolute = counts_per_texture
+    return ["dataset=survey", f"dataset.n_synthetic={synthetic}", f"dataset.n_incremental={incremental}",
+            f"dataset.n_absolute={absolute}"]
+
+
+def run_preset(preset: str, overrides: list[str], work: Path, uri: str, cache: Path | None = None) -> dict:
+    """Run one preset in its own process (output ``work/<preset>``); returns its measurements."""
+    out = work / preset
+    work.mkdir(parents=True, exist_ok=True)
+    args = [sys.executable, "-m", "gtsweep", f"sweeps={preset}", *overrides, f"hydra.run.dir={out}",
+            f"mlflow.tracking_uri={uri}", "runner.progress=false", f"cache.dir={cache or work / 'cache'}"]
+    start = time.perf_counter()
+    with open(work / f"{preset}.log", "w") as log:
+        process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, cwd=work)
+        with PeakMemory(pid=process.pid) as memory:  # the whole tree, every 0.5 s
+            process.wait()
+    seconds = time.perf_counter() - start
+    if process.returncode != 0:
+        raise SystemExit(f"gtsweep.reproduce: preset {preset} failed (exit {process.returncode}); "
+                         f"see {work / f'{preset}.log'}")
+    record = json.loads((out / "run.json").read_text())
+    parent = json.loads((out / "mlflow.json").read_text())["parent_run_id"]
+    lookups = record["cache_hits"] + record["cache_misses"]
+    return {"preset": preset, "output": out, "wall_s": seconds, "peak_mb": memory.total / 2**20,
+            "cache_hit_rate": record["cache_hits"] / lookups if lookups else float("nan"),
+            "mlflow_runs": 1 + _child_runs(uri, parent), "cells": record["cells"]}
+
+
+def _child_runs(uri: str, parent: str) -> int:
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(uri)
+    experiment = client.get_run(parent).info.experiment_id
+    return len(client.search_runs([experiment], f"tags.mlflow.parentRunId = '{parent}'", max_results=50000))
+
+
+def run_fixed(presets, overrides: list[str], work: Path, log=print) -> list[dict]:
+    """Every preset once at one size (``overrides``)."""
+    uri = f"sqlite:///{work / 'mlflow.db'}"
+    results = []
+    for preset in presets:
+        log(f"gtsweep.reproduce: {preset} ...")
+        results.append(run_preset(preset, [*overrides, *PRESET_OVERRIDES.get(preset, [])], work, uri))
+        _report(results[-1], log)
+    return results
+
+
+def run_rounds(presets, needed: Callable[[int, dict[str, dict]], set[str]], work: Path, rounds=ROUNDS,
+               extra: list[str] = (), log=print) -> list[dict]:
+    """Rounds of growing counts: round 0 runs every preset; after round k, ``needed(k, latest)`` (``latest``: each
+    preset's newest measurements) names the presets round k + 1 runs; stops when it names none or after the last
+    round. Returns every run's measurements with its round and counts."""
+    uri, cache = f"sqlite:///{work / 'mlflow.db'}", work / "cache"
+    runs, latest, wanted = [], {}, set(presets)
+    for k, counts_per_texture in enumerate(rounds):
+        if not wanted:
+            break
+        log(f"gtsweep.reproduce: round {k + 1} ({counts_per_texture} per texture): {', '.join(sorted(wanted))}")
+        for preset in [p for p in presets if p in wanted]:
+            overrides = [*round_overrides(counts_per_texture), *extra, *PRESET_OVERRIDES.get(preset, [])]
+            result = run_preset(preset, overrides, work / f"round{k + 1}", uri, cache)
+            result.update(round=k + 1, counts=list(counts_per_texture))
+            runs.append(result)
+            latest[preset] = result
+            _report(result, log)
+        wanted = set(needed(k, latest)) & set(presets)
+    return runs
+
+
+def _report(r: dict, log) -> None:
+    log(f"  {r['preset']}: {r['cells']} cells, {r['wall_s']:.0f} s, peak {r['peak_mb']:.0f} MB, "
+        f"cache hit rate {r['cache_hit_rate']:.2f}, {r['mlflow_runs']} MLflow runs")
+
+
+def full_protocol_estimate(runs: list[dict]) -> float:
+    """Seconds the fixed full protocol would take, from each preset's largest run scaled linearly in its count
+    per texture (evaluation cost grows with the number of images; a rough estimate)."""
+    largest = {}
+    for r in runs:
+        if r["preset"] not in largest or r.get("round", 0) > largest[r["preset"]].get("round", 0):
+            largest[r["preset"]] = r
+    total = 0.0
+    for preset, r in largest.items():
+        n = counts(preset, r.get("counts", FULL))
+        total += r["wall_s"] * (1 if preset == "table2_selectors" else FULL[KIND[preset]] / n)
+    return total
+
+
+def save(record: Path, content: dict) -> None:
+    write_atomically(record, json.dumps(content, default=str, indent=1))

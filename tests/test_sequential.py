@@ -1,0 +1,64 @@
+"""The sequential reproduction end to end on a tiny data set with two cheap findings: round 1 runs both presets,
+the finding decided there is frozen, round 2 runs only the preset of the undecided one, at a larger count whose
+first pairs the keypoint cache already holds."""
+import math
+
+import pytest
+
+from gtsweep.evaluation.statistics import Comparison
+from gtsweep.evaluation.verdicts import BEATS, Claim
+from gtsweep.orchestration.reproduce import run_rounds
+from gtsweep.report.findings import Hypothesis
+from gtsweep.report.pools import pairings
+from gtsweep.report.samples import matrices
+from gtsweep.report.sequential import Sequential
+
+TINY = ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "runner.backend=serial",
+        "detector=[censure]", "descriptor=[brief]", "selector=[nms]"]
+
+
+def _clusters(data, kind):
+    cells = next(iter(pairings(data, [kind]).values()))
+    return len(matrices(cells, "pose_success", data.views)[0])
+
+
+def equal_at_once(data):
+    """A difference of exactly 0: equivalent within any margin at the first look."""
+    return [Claim(f"zero on {_clusters(data, 'absolute')} pairs", Comparison("fake", 0.0, 1.0, 0.0, 0.0, n=4,
+                                                                             se=0.0, df=3), BEATS, 0.1)]
+
+
+def clear_with_six_pairs(data):
+    """+0.5, with an SE that is large below 6 pairs and small from 6 on: undecided, then holds."""
+    n = _clusters(data, "incremental")
+    return [Claim(f"+0.5 on {n} pairs", Comparison("fake", 0.5, math.nan, n=n, se=0.5 if n < 6 else 0.01, df=n - 1),
+                 BEATS, 0.1)]
+
+
+FAKE = [Hypothesis("equal at once", "table5_absolute", "", "", "", "0.1", equal_at_once),
+        Hypothesis("clear with six pairs", "table4_incremental", "", "", "", "0.1", clear_with_six_pairs)]
+
+
+@pytest.mark.slow
+def test_rounds_run_only_the_presets_of_undecided_findings(tmp_path):
+    rounds = ((1, 2, 2), (1, 3, 3))  # 2 textures: 4 pairs, then 6
+    sequential = Sequential(0.05, FAKE, information=lambda preset, counts: counts[1] / 3)
+    runs = run_rounds(["table4_incremental", "table5_absolute"], sequential.update, tmp_path, rounds=rounds,
+                      extra=TINY, log=lambda m: None)
+    assert [(r["round"], r["preset"]) for r in runs] == [(1, "table4_incremental"), (1, "table5_absolute"),
+                                                          (2, "table4_incremental")]
+    first, second = sequential.status
+    assert first.finding.verdict == "equivalent" and first.round == 1 and len(first.looks) == 1
+    assert [look[3] for look in second.looks] == ["undecided", "holds"] and second.per_texture == 3
+    # alpha spent: ln(1 + (e - 1) 2/3) of alpha at the first look, the rest at the second
+    assert second.looks[0][2] == pytest.approx(0.05 * math.log(1 + (math.e - 1) * 2 / 3))
+    assert second.spent == pytest.approx(0.05)
+    # round 2's detections of the first 2 pairs per texture came from the cache round 1 filled
+    assert runs[2]["cache_hit_rate"] > 0
+    # the document: each finding with the round, count per texture and level of its verdict; compute spent
+    from gtsweep.report.reproduce import write_document
+
+    text = write_document(runs, "decide", tmp_path / "docs", 0.05, sequential).read_text()
+    assert "| equal at once | equivalent | round 1, 2, " in text
+    assert "| clear with six pairs | holds | round 2, 3, " in text
+    assert "counts per texture reached: table4_incremental 3, table5_absolute 2" in text and "Compute spent" in text
