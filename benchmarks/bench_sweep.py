@@ -26,9 +26,9 @@ from gtsweep.core.memory import PeakMemory
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import build_grid
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.stages import keypoints as kp
-from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
+from gtsweep.stages.describe import DESCRIPTORS, descriptor_params, prepare_keypoints
 from gtsweep.stages.detect import DETECTORS
 
 GRID = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,orb,sift]", "selector=[nms]",
@@ -61,8 +61,9 @@ def floor(cfg, threads: int) -> float:
             extractor = spec.build(descriptor_params(scfg, detector))
             matcher = cv2.BFMatcher(cv2.NORM_HAMMING if spec.norm == "hamming" else cv2.NORM_L2)
             for (ref, test), (kr, kt) in zip(pairs, found):
-                if detector != descriptor:  # as gtsweep does for foreign keypoints (OpenCV 5 would misread them)
-                    kr, kt = (kp.to_keypoints(_foreign(kp.to_array(k))) for k in (kr, kt))
+                # as gtsweep gives keypoints to a descriptor (foreign ones at their own scale: stages/scales.py)
+                kr, kt = (kp.to_keypoints(prepare_keypoints(kp.to_array(k), detector, spec, extractor, ref.shape))
+                          for k in (kr, kt))
                 kr, dr = extractor.compute(ref, kr)
                 kt, dt = extractor.compute(test, kt)
                 if dr is None or dt is None or len(dr) < 2:
@@ -74,12 +75,6 @@ def floor(cfg, threads: int) -> float:
                     cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0, maxIters=2000)
     cv2.setNumThreads(-1)
     return time.perf_counter() - start
-
-
-def _foreign(array: np.ndarray) -> np.ndarray:
-    array[:, kp.OCTAVE] = 0
-    array[array[:, kp.ANGLE] < 0, kp.ANGLE] = 0.0
-    return array
 
 
 def timed_sweep(cfg, out: Path):

@@ -16,7 +16,7 @@ from gtsweep.cli import search
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, PACKAGE_DIR, PROJECT_DIR
 from gtsweep.orchestration.grid import REGISTRIES, build_grid
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.stages.detect import DETECTORS
 
 MY_STAR = """\
@@ -65,14 +65,16 @@ def test_user_configs_are_valid_choices(user_conf):
     (expanded,) = [a for a in cli.expand_all(args) if a.startswith("detector=")]
     assert "my_star" in expanded and "sift" in expanded
     # Hydra's sweeper globs over its main directory only: gtsweep expands a glob over the search path itself
-    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[-1] == "detector=my_star"
+    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[0] == "detector=my_star"
     with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
         cli.expand_all(["-m", "detector=glob(zz*)"])
     with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
         cli.validate(["--config-dir", str(user_conf), "detector=[my_starr]"])
     with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):
         cli.validate(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
-    cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+    cli.validate(["detector=[sift,my_star]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+    with pytest.raises(BadInput, match="detector 'my_star' is not selected"):  # Hydra would refuse it later
+        cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
     with pytest.raises(UnknownMethod):  # without the user's directory it does not exist
         cli.validate(["detector=[my_star]"])
 
@@ -112,10 +114,10 @@ def test_descriptors_declared_in_yaml_need_a_known_norm():
 
 
 def test_only_the_overrides_are_touched():
-    args = ["--cfg", "job", "detector=all", "seed=1", "-m", "--config-dir", "x"]
-    expanded = cli.expand_all(args)
-    assert expanded[:2] == ["--cfg", "job"] and expanded[3:] == ["seed=1", "-m", "--config-dir", "x"]
-    assert expanded[2].startswith("detector=[agast,")
+    args = ["--cfg", "job", "detector=all", "-m", "seed=1", "--config-dir", "x"]
+    expanded = cli.expand_all(args)  # the overrides as one run, then Hydra's flags in their order
+    assert expanded[1:] == ["seed=1", "--cfg", "job", "-m", "--config-dir", "x"]
+    assert expanded[0].startswith("detector=[agast,")
     assert cli.prepare(["-sc", "install=bash"]) == ["-sc", "install=bash"]  # shell completion: Hydra's own
     assert search.parse(["-sc", "install=bash"]).passthrough
     invocation = search.parse(["detector=[sift]", "--info", "searchpath"])
@@ -124,9 +126,9 @@ def test_only_the_overrides_are_touched():
 
 def test_a_users_searchpath_keeps_gtsweeps_entries(user_conf):
     (prepared,) = [a for a in cli.prepare([f"hydra.searchpath=[file://{user_conf}]"]) if a.startswith("hydra.")]
-    assert prepared == f"hydra.searchpath=[file://{user_conf},file://tuned,pkg://gtsweep.conf]"
+    assert prepared == f"hydra.searchpath=[file://{user_conf},tuned://tuned,pkg://gtsweep.conf]"
     assert search.search_path([f"hydra.searchpath=[file://{user_conf}]"]) == (
-        search.PRIMARY, f"file://{user_conf}", "file://tuned", "pkg://gtsweep.conf")
+        search.PRIMARY, f"file://{user_conf}", "tuned://tuned", "pkg://gtsweep.conf")
     assert "my_star" in cli.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
 
 

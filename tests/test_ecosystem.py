@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.optimize.output import storage_label
+from gtsweep.optimize.tuned_files import storage_label
 from gtsweep.orchestration import executor
 from gtsweep.report.combine import combine, mean_summary
 from gtsweep.report.tables import sample_note

@@ -8,7 +8,7 @@ from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.evaluation import reuse
 from gtsweep.orchestration.grid import build_grid
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.report.tables import build_tables, table_cells
 from gtsweep.tracking.tags import cell_names
 

@@ -1,7 +1,8 @@
 """The house rules, checked from the source: layers import only downward, no import cycle, no module over ~400 lines.
 
 Layers, lowest first (README, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` < ``orchestration`` <
-``tracking`` < ``report`` < ``optimize`` < ``cli``. The science (core, stages, evaluation, datasets) never imports
+``tracking`` < ``report`` < ``optimize`` < ``experiments`` < ``cli``; a package's ``__main__`` is an entry point
+(nothing imports it) and may use any layer. The science (core, stages, evaluation, datasets) never imports
 the orchestration, tracking, report, optimisation or command-line layers. Lazy (function-level) imports count.
 """
 from __future__ import annotations
@@ -12,7 +13,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gtsweep"
-LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "optimize", "cli"]
+LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "optimize", "experiments",
+          "cli"]
 SCIENCE = {"core", "stages", "evaluation", "datasets"}
 MAX_LINES = 400
 
@@ -54,7 +56,7 @@ def test_layers_import_only_downward():
     upward = []
     for module, path in modules.items():
         own = _layer(module)
-        if own is None:
+        if own is None or module.endswith(".__main__"):  # an entry point: nothing imports it
             continue
         for imported in _imports(path, modules):
             other = _layer(imported)
@@ -104,3 +106,32 @@ def test_no_module_level_run_state():
     offenders = [str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
                  if any(isinstance(n, ast.Global) for n in ast.walk(ast.parse(p.read_text())))]
     assert offenders == []
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def test_no_private_name_is_imported_across_modules():
+    """``from gtsweep.a import _x`` and ``a._x`` on an imported gtsweep module: a private name stays in its module
+    (the package and the benchmarks; a unit test may still reach a private helper it tests)."""
+    modules = _modules()
+    offenders = []
+    for path in [*PACKAGE.rglob("*.py"), *(PACKAGE.parent / "benchmarks").glob("*.py")]:
+        tree = ast.parse(path.read_text())
+        imported_modules = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("gtsweep"):
+                for alias in node.names:
+                    if f"{node.module}.{alias.name}" in modules:
+                        imported_modules.add(alias.asname or alias.name)
+                    elif _private(alias.name):
+                        offenders.append(f"{path.name}: from {node.module} import {alias.name}")
+            elif isinstance(node, ast.Import):
+                imported_modules |= {alias.asname or alias.name for alias in node.names
+                                     if alias.name.startswith("gtsweep") and alias.asname}
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                    and node.value.id in imported_modules and _private(node.attr)):
+                offenders.append(f"{path.name}: {node.value.id}.{node.attr}")
+    assert offenders == [], "private names used across modules:\n" + "\n".join(sorted(set(offenders)))

@@ -16,7 +16,7 @@ from gtsweep.stages.describe import DESCRIPTORS, describe
 from gtsweep.stages.detect import DETECTORS, detect
 from gtsweep.stages.lightglue import Side
 from gtsweep.stages.match import MATCHERS, applicability, match_sides
-from gtsweep.stages.pairing import applicability as pairing_applicability
+from gtsweep.stages.applicability import applicability as pairing_applicability
 from gtsweep.stages.torch_standin import deform_conv2d, install
 
 LEARNED = ("aliked_n16", "aliked_n16rot", "disk")

@@ -237,7 +237,7 @@ def test_run_writes_per_query_rows_and_reuses_the_cached_map(tmp_path):
 
 
 def test_report_rebuilds_from_a_localization_run(tmp_path, capsys):
-    from gtsweep.report.localization import is_localization, main
+    from gtsweep.experiments.report_command import main
 
     cells = tmp_path / "cells"
     cells.mkdir()
@@ -249,7 +249,6 @@ def test_report_rebuilds_from_a_localization_run(tmp_path, capsys):
                "by_map_images": {"4.0": {"localization_success": 1.0, "t_query": 0.1, "map_bytes": 2e6},
                                  "16.0": {"localization_success": 0.0, "t_query": 0.3, "map_bytes": 8e6}}}
     (cells / "k.json").write_text(__import__("json").dumps(summary))
-    assert is_localization([str(tmp_path)]) and not is_localization([str(tmp_path), "--mlflow"])
     assert main([str(tmp_path), "--no-plots"]) == 0
     printed = capsys.readouterr().out
     assert "| sift/sift | flann | ransac | 50 % [10 %, 90 %] | 0 % |" in printed

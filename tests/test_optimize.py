@@ -15,10 +15,10 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.optimize.driver import main
 from gtsweep.optimize.objective import trial_metrics
-from gtsweep.optimize.output import tuned_node
+from gtsweep.optimize.tuned_files import tuned_node
 from gtsweep.optimize.search_space import parse_space
-from gtsweep.optimize.settings import read_settings
-from gtsweep.optimize.study import open_study
+from gtsweep.optimize.study_settings import read_settings
+from gtsweep.optimize.optuna_study import open_study
 from gtsweep.optimize.targets import Target, build_targets
 from gtsweep.orchestration.grid import build_grid
 
@@ -74,6 +74,12 @@ def test_trials_are_nested_mlflow_runs(first):
     assert (children["metrics.score"] == children["metrics.repeatability"] - children["metrics.n_few"]).all()
     assert children["tags.gtsweep.defaults"].eq("true").sum() == 1  # trial 0 evaluates the defaults
     assert summary["best_value"] == children["metrics.objective"].max()
+    # what identifies a trial filters (tracking.params); names are unique in the experiment
+    assert (children["params.detector"] == "fast").all() and (children["params.seed"] == "0").all()
+    assert (children["params.dataset"] == "synthetic").all() and (children["params.objective"] == "repeatability").all()
+    assert frame["tags.mlflow.runName"].is_unique
+    assert children["tags.mlflow.runName"].str.endswith(" · optimize/" + summary["study"]).all()
+    assert parents.iloc[0]["params.dataset.fingerprint"] == parents.iloc[0]["tags.gtsweep.dataset_fingerprint"]
 
 
 def test_tuned_config_loads_back_through_hydra(first, monkeypatch):

@@ -119,7 +119,8 @@ def test_bad_overrides_fail_in_one_line(args, message, capsys):
 
 def test_good_overrides_pass():
     cli.validate(cli.expand_all(["-m", "detector=all", "selector.nms.params.n=500", "seed=0,1",
-                                 "transform.rotation.strengths=[0,90]", "detector=glob(s*)", "+foo=1"]))
+                                 "transform=[rotation,noise]", "transform.rotation.strengths=[0,90]",
+                                 "detector=glob(s*)", "+foo=1"]))
 
 
 def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):

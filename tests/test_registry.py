@@ -147,5 +147,7 @@ def test_cli_passes_method_parameters_as_force_add_overrides():
 def test_hydra_overrides_are_placed_with_the_others():
     assert cli.place(["detector=[sift]", "--cfg", "job"], ["hydra.x=1"]) == ["detector=[sift]", "hydra.x=1",
                                                                            "--cfg", "job"]
+    assert cli.place(["--cfg", "job", "detector=[sift]"], ["hydra.x=1"]) == ["detector=[sift]", "hydra.x=1",
+                                                                           "--cfg", "job"]
     assert cli.place(["--cfg", "job"], ["hydra.x=1"]) == ["hydra.x=1", "--cfg", "job"]
     assert cli.place(["--info"], ["hydra.x=1"]) == ["hydra.x=1", "--info"]  # not taken as --info's value

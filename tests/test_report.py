@@ -8,8 +8,9 @@ import pandas as pd
 import pytest
 from sweep_helpers import compose_config, tiny_overrides
 
-from gtsweep.orchestration.sweep import run_sweep
-from gtsweep.report.output import main, write_report
+from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.report_command import main
+from gtsweep.report.output import write_report
 from gtsweep.report.tables import build_tables, fmt
 
 SERIAL = ["runner.backend=serial", "mlflow.enabled=false"]

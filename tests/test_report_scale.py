@@ -5,7 +5,7 @@ import yaml
 from report_fakes import fake_cell
 
 from gtsweep.report.findings import check_findings, survey_variant
-from gtsweep.report.output import main
+from gtsweep.experiments.report_command import main
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import Scale, load_scale, scale_from_config
 from gtsweep.report.tables import build_tables, frame, load_summaries

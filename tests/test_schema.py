@@ -15,7 +15,7 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summarize, summary_table
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.report.output import write_report
 from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow
 
@@ -96,7 +96,7 @@ def test_schema_declares_every_row_column():
     assert set(schema.STEP_KEYS) <= set(schema.META)
     assert {"n_test_valid", "n_ref_valid", "n_repeated", "n_kp_ref", "n_described_ref", "n_described_test",
             "n_inliers", "t_detect", "t_describe", "t_match", "t_pose", "view", "texture"} <= declared
-    assert {e: schema.headline(e) for e in schema.EXPERIMENTS} == {
+    assert {e: schema.headline(e) for e in schema.EXPERIMENT_ROWS} == {
         "detection": "repeatability", "matching": "precision", "pose": "pose_success",
         "localization": "localization_success"}
     with pytest.raises(GtsweepError, match="already declared"):
@@ -113,7 +113,7 @@ def test_summary_table_orders_columns_by_schema():
 
 
 def test_terminal_summary_shows_the_schema_headline():
-    from gtsweep.cli.app import headline_tables
+    from gtsweep.experiments.summary import headline_tables
 
     methods = {"detector": "sift", "selector": "nms", "descriptor": None, "transform": "rotation"}
     outcome = SimpleNamespace(grid=SimpleNamespace(experiment={"name": "detection"}), summaries=[
@@ -146,7 +146,7 @@ def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monke
     client = mlflow.tracking.MlflowClient(uri)
     (child,) = client.search_runs([tracker.experiment_id], f"tags.mlflow.parentRunId = '{tracker.parent_id}'")
     assert child.data.metrics["match_share"] == pytest.approx(expected)
-    assert sorted(m.step for m in client.get_metric_history(child.info.run_id, "match_share_vs_strength")) == [0, 90]
+    assert sorted(m.step for m in client.get_metric_history(child.info.run_id, "curves/match_share_vs_strength")) == [0, 90]
 
     for source, summaries in (("files", outcome.summaries), ("mlflow", summaries_from_mlflow(tracker.parent_id, uri))):
         _, files = write_report(summaries, tmp_path / source, plots=False)

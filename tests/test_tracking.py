@@ -13,23 +13,24 @@ import urllib.request
 
 import mlflow
 import pytest
+from omegaconf import OmegaConf
 from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.orchestration.sweep import run_sweep
+from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.tracking.store import flatten
 from gtsweep.tracking.sweep import SweepTracker, step_scale
 
 GRID = ["detector=[akaze,censure]", "descriptor=[akaze,brief]", "selector=[nms]",
         "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]
 POSE_METRICS = {"repeatability", "ambiguity", "few_keypoints", "n_detected", "n_kp_test", "n_matches", "n_correct",
-                "precision", "pose_success", "position_error", "orientation_error", "n_inliers", "t_detect",
-                "t_describe", "t_match", "t_pose"}
+                "precision", "pose_success", "position_error", "orientation_error", "n_inliers", "time/t_detect",
+                "time/t_describe", "time/t_match", "time/t_pose", "ci/pose_success_ci_low", "ci/pose_success_ci_high"}
 
 
 def tracked_sweep(tmp_path, uri):
     cfg = compose_config(tiny_overrides(tmp_path, *GRID, f"mlflow.tracking_uri={uri}"))
-    tracker = SweepTracker(cfg.mlflow, tmp_path / "run", "config: yes", "test-run")
+    tracker = SweepTracker(cfg.mlflow, tmp_path / "run", OmegaConf.to_yaml(cfg, resolve=True), "test-run")
     outcome = run_sweep(cfg, tmp_path / "run", hooks=(tracker.log_cell,),
                         on_start=lambda grid, fp: tracker.start(grid, fp, library_versions()))
     tracker.end(outcome)
@@ -74,8 +75,8 @@ def test_runs_read_as_the_ui_expects(sweep_store):
     assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
     children = client.search_runs([experiment.experiment_id], f"tags.mlflow.parentRunId = '{tracker.parent_id}'")
     names = {r.data.tags["gtsweep.cell"]: r.info.run_name for r in children}
-    assert names["akaze__nms__brief__incremental"] == "akaze·brief·inc"
-    assert names["censure__nms__akaze__rotation"] == "censure·akaze·rot"
+    assert names["akaze__nms__brief__incremental"] == "akaze·brief·inc · test-run"  # the cell, then its sweep
+    assert names["censure__nms__akaze__rotation"] == "censure·akaze·rot · test-run"
     summaries = {s["key"]: s for s in outcome.summaries}
     for run in children:
         tags = run.data.tags
@@ -87,10 +88,13 @@ def test_runs_read_as_the_ui_expects(sweep_store):
         assert run.info.start_time == round(summary["started"] * 1000)  # the cell's compute time
         assert run.info.end_time == round(summary["ended"] * 1000) >= run.info.start_time
         artifacts = [a.path for a in client.list_artifacts(run.info.run_id)]
-        assert artifacts == [f"{tags['gtsweep.cell']}.csv"]  # the cell's per-view rows
+        curves = ["strength_curves.png"] if summary["methods"]["transform"] == "rotation" else []
+        assert artifacts == [*curves, "views.csv"]  # the cell's per-view rows (and curves), one name in every run
     parent = client.get_run(tracker.parent_id)
     assert parent.data.tags["mlflow.source.name"] == "python -m gtsweep"
     assert "mlflow ui --backend-store-uri " + uri in tracker.ui_hint()
+    assert tracker.ui_hint().endswith(f"http://127.0.0.1:5000/#/experiments/{experiment.experiment_id}/runs"
+                                      "?workflowType=machine_learning&viewStateShareKey=gtsweep-pairings")
 
 
 def test_strength_curves_are_metric_steps(sweep_store):
@@ -98,7 +102,7 @@ def test_strength_curves_are_metric_steps(sweep_store):
     client = mlflow.tracking.MlflowClient(uri)
     run = mlflow.search_runs(experiment_names=["gtsweep"],
                              filter_string="tags.`gtsweep.cell` = 'akaze__nms__brief__rotation'").iloc[0]
-    history = client.get_metric_history(run.run_id, "pose_success_vs_strength")
+    history = client.get_metric_history(run.run_id, "curves/pose_success_vs_strength")
     assert sorted(m.step for m in history) == [0, 90]
     incremental = mlflow.search_runs(experiment_names=["gtsweep"],
                                      filter_string="tags.`gtsweep.cell` = 'akaze__nms__brief__incremental'").iloc[0]

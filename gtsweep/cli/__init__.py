@@ -12,9 +12,9 @@ import sys
 from gtsweep.cli import completion, lifecycle
 from gtsweep.cli.overrides import fail, place, prepare, resume_args
 from gtsweep.cli.search import parse
-from gtsweep.core.configs import ignore_missing_dir
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
+from gtsweep.core.searchpath import ignore_missing_dir, register_sources
 
 #: Flags that only print (help, config): no output directory needed.
 PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")
@@ -35,6 +35,7 @@ def main(argv: list[str] | None = None) -> None:
             fail(e)
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
     lifecycle.register_resolvers()
+    register_sources()
     sys.argv = [sys.argv[0], *args]
     with lifecycle.interruptible():  # Ctrl-C while Hydra composes or imports: one line too
         try:

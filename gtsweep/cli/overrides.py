@@ -20,12 +20,13 @@ from pathlib import Path
 
 from gtsweep.cli.search import (
     GRID_GROUPS,
+    check_yaml,
     configs,
     parse,
     user_searchpath,
     with_searchpath,
 )
-from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, nearest
 from gtsweep.core.registry import compatible
 from gtsweep.orchestration.settings import SETTINGS
 
@@ -221,7 +222,9 @@ def validate(args: list[str]) -> None:
         found, default = _default_value(key, args)
         if not found:
             _moved(key)
-            raise BadInput(f"unknown config key '{key}' (to add a new key write +{key}=...)")
+            raise BadInput(f"unknown config key '{key}'" + "".join(f"; did you mean '{near}'?"
+                                                                    for near in _near_keys(key, args)))
+        _check_selected(override.input_line, args)
         for value in _values(override, args):
             if default != "???" and not compatible(default, value):
                 kind = type(default).__name__
@@ -229,6 +232,39 @@ def validate(args: list[str]) -> None:
                                f"like the default {default!r}, got {type(value).__name__}")
             if key in SETTINGS:  # its allowed values: before Hydra creates an output directory
                 SETTINGS[key].check(key, value)
+
+
+def _near_keys(key: str, args) -> list[str]:
+    """The known key nearest to a mistyped one (at most one), by its first unknown part: ``detectr`` ->
+    ``detector``, ``runner.num_cpuz`` -> ``runner.num_cpus``."""
+    parts = key.split(".")
+    for depth in range(len(parts) - 1, -1, -1):
+        prefix = ".".join(parts[:depth])
+        try:
+            found, node = _default_value(prefix, args) if prefix else (True, _top_level_keys(args))
+        except GtsweepError:
+            continue
+        if found and isinstance(node, dict):
+            return [".".join([*parts[:depth], near, *parts[depth + 1:]]) for near in nearest(parts[depth], node)]
+    return []
+
+
+def _top_level_keys(args) -> dict:
+    keys = {k: None for k in configs(args).load("config") if k != "defaults"}
+    return {**keys, **{group: None for group in (*GRID_GROUPS, *SINGLE_GROUPS)}}
+
+
+def _check_selected(override: str, args) -> None:
+    """A setting of a grid group's option (``transform.rotation.strengths=...``) needs that option selected in
+    every job: else Hydra would refuse it, or a force-add would put the option into the grid."""
+    key = override.lstrip("+").partition("=")[0]
+    parts = key.split(".")
+    if parts[0] not in GRID_GROUPS or len(parts) < 3 or override.startswith("~"):
+        return
+    selected = _selected(parts[0], args)
+    if selected is not None and parts[1] not in selected:
+        raise BadInput(f"override '{override}': {parts[0]} '{parts[1]}' is not selected (selected: "
+                       f"{', '.join(sorted(selected))}); add it, e.g. {parts[0]}=[{parts[1]},...]")
 
 
 def _moved(key: str) -> None:
@@ -257,11 +293,7 @@ def force_add(args: list[str]) -> list[str]:
             if param is None or arg.startswith("+") and not arg.startswith("++"):
                 rewritten.append(arg)
                 continue
-            group, name, _ = param
-            selected = _selected(group, args)
-            if selected is not None and name not in selected:
-                raise BadInput(f"override '{arg}': {group} '{name}' is not selected (selected: "
-                               f"{', '.join(sorted(selected))}); add it, e.g. {group}=[{name},...]")
+            _check_selected(arg, args)
             rewritten.append(f"++{arg.lstrip('+')}")
         return rewritten
 
@@ -322,6 +354,7 @@ def resume_args(args: list[str], multirun: bool) -> list[str]:
 def prepare(args: list[str]) -> list[str]:
     """The command line Hydra gets: ``all`` expanded, every override checked, method parameters force-added, a
     user's ``hydra.searchpath`` completed with gtsweep's entries. A :class:`GtsweepError` for a mistake."""
+    check_yaml(args)
     args = expand_all(list(args))
     validate(args)
     return searchpath(force_add(args))
@@ -333,7 +366,7 @@ def compose_config(overrides: list[str], config_dir: str | None = None):
     from hydra import compose, initialize_config_module
 
     from gtsweep.cli.search import PRIMARY_MODULE, PRIMARY_NAME, keyed_methods
-    from gtsweep.core.configs import ignore_missing_dir, register_help_resolver
+    from gtsweep.core.searchpath import ignore_missing_dir, register_help_resolver
     from gtsweep.core.paths import DEFAULT_TUNED_ROOT
 
     args = ["--config-dir", config_dir, *overrides] if config_dir else list(overrides)
@@ -347,7 +380,7 @@ def compose_config(overrides: list[str], config_dir: str | None = None):
     register_help_resolver()
     with initialize_config_module(config_module=PRIMARY_MODULE, version_base=None):
         cfg = compose(config_name=PRIMARY_NAME, overrides=overrides)
-    keyed_methods(cfg, configs(args), overrides)
+        keyed_methods(cfg, configs(args), overrides)
     return cfg
 
 

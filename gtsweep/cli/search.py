@@ -17,51 +17,88 @@ from importlib import resources
 
 import yaml
 
-from gtsweep.core.configs import Configs
 from gtsweep.core.errors import BadInput
+from gtsweep.core.searchpath import METHOD_GROUPS, Configs
 
 PRIMARY_MODULE = "gtsweep.cli.primary"
 PRIMARY = f"pkg://{PRIMARY_MODULE}"
 PRIMARY_NAME = "gtsweep"
 #: The config groups that hold a list of methods and span the grid.
-GRID_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+GRID_GROUPS = METHOD_GROUPS
 
 
 @dataclass(frozen=True)
 class Invocation:
-    """A command line as Hydra's own parser reads it: the overrides (one run of ``argv``, from ``start``) and
-    Hydra's flags, wherever they stand."""
+    """A command line as Hydra's own parser reads it: Hydra's flags (wherever they stood, in their order) and the
+    overrides (every positional argument, in its order)."""
 
-    argv: tuple[str, ...]
+    flags: tuple[str, ...]
     overrides: tuple[str, ...]
-    start: int
     config_dir: str | None
     multirun: bool
     passthrough: bool  # shell completion (``-sc install=bash``), or a command line Hydra will refuse: left as is
 
+    @property
+    def argv(self) -> list[str]:
+        """The command line as Hydra's parser takes it: the overrides as one run, then the flags (a flag standing
+        between overrides would end Hydra's positional arguments; an override after ``--info`` would be taken for
+        its value)."""
+        return [*self.overrides, *self.flags]
+
     def with_overrides(self, overrides: list[str]) -> list[str]:
-        """``argv`` with its overrides replaced by ``overrides`` (in their place: Hydra takes them as one run)."""
-        end = self.start + len(self.overrides)
-        return [*self.argv[:self.start], *overrides, *self.argv[end:]]
+        """The command line with its overrides replaced by ``overrides``."""
+        return [*overrides, *self.flags]
 
 
 def _raise(message: str):
     raise BadInput(message)
 
 
+#: Hydra 1.3's flags (``hydra.main``'s command line; only the overrides are gtsweep's): switches, flags that take
+#: the next token as their value (``--cfg`` with its choices), and ``--info`` with an optional value.
+SWITCHES = (("--help", "-h"), ("--hydra-help",), ("--version",), ("--resolve",), ("--run", "-r"),
+            ("--multirun", "-m"), ("--shell-completion", "-sc"))
+VALUED = {("--cfg", "-c"): ["job", "hydra", "all"], ("--package", "-p"): None, ("--config-path", "-cp"): None,
+          ("--config-name", "-cn"): None, ("--config-dir", "-cd"): None, ("--experimental-rerun",): None}
+INFO = (("--info", "-i"), ["all", "config", "defaults", "defaults-tree", "plugins", "searchpath"])
+VALUE_FLAGS = tuple(flag for flags in VALUED for flag in flags)
+
+
+def hydra_flags() -> argparse.ArgumentParser:
+    """A parser of Hydra's command line (``tests/test_cli_hydra.py`` holds it against Hydra's own, so that a new
+    Hydra flag is noticed)."""
+    parser = argparse.ArgumentParser(add_help=False, prog="python -m gtsweep")
+    parser.add_argument("overrides", nargs="*")
+    for flags in SWITCHES:
+        parser.add_argument(*flags, action="store_true")
+    for flags, choices in VALUED.items():
+        parser.add_argument(*flags, choices=choices)
+    parser.add_argument(*INFO[0], const="all", nargs="?", choices=INFO[1])
+    return parser
+
+
+def _without(argv: tuple[str, ...], overrides: tuple[str, ...]) -> tuple[str, ...]:
+    """``argv`` without the tokens that are ``overrides`` (matched in order; a flag's value is never one)."""
+    flags, remaining = [], list(overrides)
+    for i, token in enumerate(argv):
+        takes_value = i > 0 and argv[i - 1] in VALUE_FLAGS
+        if remaining and token == remaining[0] and not takes_value:
+            remaining.pop(0)
+        else:
+            flags.append(token)
+    return tuple(flags)
+
+
 @lru_cache(maxsize=64)
 def _parse(argv: tuple[str, ...]) -> Invocation:
-    from hydra._internal.utils import get_args_parser
-
-    parser = get_args_parser()
+    parser = hydra_flags()
     parser.error = _raise  # a command line Hydra refuses is Hydra's to report
     try:
-        args = parser.parse_args(list(argv))
-    except (BadInput, argparse.ArgumentError):
-        return Invocation(argv, (), 0, None, "-m" in argv or "--multirun" in argv, True)
+        args = parser.parse_intermixed_args(list(argv))
+    except (BadInput, argparse.ArgumentError, TypeError):
+        return Invocation(argv, (), None, "-m" in argv or "--multirun" in argv, True)
     overrides = tuple(args.overrides)
-    start = next((i for i in range(len(argv)) if argv[i:i + len(overrides)] == overrides), 0)
-    return Invocation(argv, overrides, start if overrides else 0, args.config_dir, bool(args.multirun),
+    return Invocation(_without(argv, overrides), overrides, args.config_dir, bool(args.multirun),
                       bool(args.shell_completion))
 
 
@@ -117,16 +154,36 @@ def configs(argv=()) -> Configs:
 
 
 
-def loaded_files(found: Configs, overrides) -> list[tuple[str, str]]:
-    """``(package, config path)`` of every config file that composing the primary with ``overrides`` loads (Hydra's
-    defaults list; ``runtime.choices`` leaves out the groups that take a list)."""
-    from hydra._internal.config_repository import CachingConfigRepository
-    from hydra._internal.defaults_list import create_defaults_list
-    from hydra.core.override_parser.overrides_parser import OverridesParser
+def check_yaml(argv) -> None:
+    """A one-line BadInput naming ``file:line`` for a config file of the user's directories on the search path
+    (``--config-dir``, ``hydra.searchpath``, ``./tuned``) that is not valid YAML, before Hydra reads it."""
+    for entry in search_path(argv):
+        scheme, _, root = entry.partition("://")
+        if scheme not in ("file", "tuned") or not os.path.isdir(root):
+            continue
+        for folder, _, names in os.walk(root):
+            for name in sorted(n for n in names if n.endswith(".yaml")):
+                path = os.path.join(folder, name)
+                try:
+                    with open(path, encoding="utf-8") as f:
+                        yaml.safe_load(f)
+                except yaml.MarkedYAMLError as e:
+                    mark = e.problem_mark or e.context_mark
+                    raise BadInput(f"malformed YAML in {path}:{mark.line + 1 if mark else '?'}: "
+                                   f"{e.problem or e.context}") from None
+                except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+                    raise BadInput(f"cannot read the config {path}: {e}") from None
 
-    parsed = OverridesParser.create().parse_overrides(list(overrides))
-    defaults = create_defaults_list(CachingConfigRepository(found.repository), PRIMARY_NAME, parsed,
-                                    prepend_hydra=False, skip_missing=True)
+
+def loaded_files(overrides) -> list[tuple[str, str]]:
+    """``(package, config path)`` of every config file that composing the primary with ``overrides`` loads (Hydra's
+    defaults list, from the running Hydra's config loader; ``runtime.choices`` leaves out the groups that take a
+    list)."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.types import RunMode
+
+    loader = GlobalHydra.instance().config_loader()
+    defaults = loader.compute_defaults_list(PRIMARY_NAME, list(overrides), RunMode.RUN)
     return [(d.package, d.config_path) for d in defaults.defaults if d.config_path and not d.is_self]
 
 
@@ -140,7 +197,7 @@ def keyed_methods(cfg, found: Configs, overrides) -> None:
     """
     from omegaconf import OmegaConf, open_dict
 
-    for package, path in loaded_files(found, overrides):
+    for package, path in loaded_files(overrides):
         group, _, option = path.partition("/")
         if package != group or group not in GRID_GROUPS or group not in cfg:
             continue

@@ -10,7 +10,15 @@ class UnknownMethod(GtsweepError):
 
     def __init__(self, family: str, name: str, choices):
         self.family, self.name, self.choices = family, name, sorted(choices)
-        super().__init__(f"unknown {family} '{name}'; valid choices: {', '.join(self.choices)}")
+        super().__init__(f"unknown {family} '{name}'; valid choices: {', '.join(self.choices)}"
+                         + "".join(f" (did you mean '{near}'?)" for near in nearest(name, self.choices)))
+
+
+def nearest(word: str, candidates) -> list[str]:
+    """The candidate closest to a mistyped ``word`` (``detectr`` -> ``detector``), as a list of at most one."""
+    import difflib
+
+    return difflib.get_close_matches(str(word), [str(c) for c in candidates], n=1, cutoff=0.6)
 
 
 class BadInput(GtsweepError):

@@ -190,6 +190,11 @@ class Registry(Generic[M]):
         self._methods[method.name] = method
         return method
 
+    def unregister(self, name: str) -> None:
+        """Remove ``name`` (a plug-in's entry, e.g. after a test)."""
+        self._methods.pop(name, None)
+        self._declared.pop(name, None)
+
     def get(self, name: str, default: Any = _REQUIRED) -> M:
         """The method called ``name``; :class:`UnknownMethod` lists the valid names otherwise (or ``default``
         when one is given)."""

@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the Hydra application on ``argv`` (default: the command line)."""
     import hydra
 
-    from gtsweep.core.configs import register_help_resolver
+    from gtsweep.core.searchpath import register_help_resolver
 
     register_help_resolver()
     codes = []

@@ -1,10 +1,11 @@
 """The survey's evaluation of one image pair (sections 4 and 5), composed from the stage modules.
 
 :func:`detect_and_select` runs detection then selection on one image; :func:`detection_metrics` scores the
-keypoints of a reference/test pair (repeatability, ambiguity, < N KPs); :func:`pairing_metrics` describes, matches
-and estimates the pose for one detector-descriptor pairing, from its parts (:func:`describe_pair` once per pair,
-:func:`match_metrics` per matcher, :func:`pose_metrics` per estimator), which a grid of several matchers and
-estimators calls directly. Everything is plain data in, plain dicts out, so the
+keypoints of a reference/test pair (repeatability, ambiguity, < N KPs); a pairing is described once per pair
+(:func:`describe_pair`), matched per matcher (:func:`match_metrics`) and posed per estimator (:func:`pose_metrics`).
+Over the views of a shard: :func:`detect_views` (keypoint budget scaled to the view) and :func:`evaluate_views`
+(the reference-count loop of survey Table 7; a matcher or estimator that fails costs only its own combinations).
+Everything is plain data in, plain dicts out, so the
 orchestration (grid, Ray, cache, tracking) can stay elsewhere. Every key of the returned dicts is a column declared
 in :mod:`gtsweep.evaluation.schema` (which says how a cell aggregates it); an undeclared one stops the sweep.
 """
@@ -16,9 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gtsweep.evaluation import metrics
+from gtsweep.core.seeds import stable_seed
+from gtsweep.evaluation import budget, metrics
 from gtsweep.evaluation.reuse import DescribeOnce
 from gtsweep.evaluation.transforms import ViewPair
+from gtsweep.evaluation.views import views
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.lightglue import Side
@@ -85,7 +88,7 @@ def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor
     :class:`~gtsweep.evaluation.reuse.DescribeOnce`, so images seen before (a reference under several strengths,
     several reference counts) are not described again.
     """
-    memo = memo or DescribeOnce(descriptor, detector, descriptor_params)
+    memo = memo or DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
     if experiment.get("test_count") is not None:
         test_kps = test_kps[:experiment["test_count"]]
     ref_kept, ref_desc, t_ref = memo.describe(view.reference, ref_kps, reference_count)
@@ -140,22 +143,89 @@ def survey_methods(experiment: dict):
     return MATCHERS.get("bf_ratio").build(matcher), ESTIMATORS.get("ransac").build(estimator)
 
 
-def pairing_metrics(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor_params: dict, detector: str,
-                    experiment: dict, seed: int = 0, reference_count: int | None = None, matcher=None,
-                    estimator=None) -> dict:
-    """Describe, match and (for the pose experiment) estimate the pose of one pair (survey 4.2, 4.3).
+#: A (matcher, estimator) combination; the estimator is None outside the pose experiment.
+Combination = tuple[str, "str | None"]
 
-    ``matcher`` and ``estimator`` are built methods (:data:`~gtsweep.stages.match.MATCHERS`,
-    :data:`~gtsweep.stages.pose.ESTIMATORS`); None: the survey's (:func:`survey_methods`). ``reference_count`` and
-    ``experiment["test_count"]``: :func:`describe_pair`.
-    """
-    if matcher is None or estimator is None:
-        survey_matcher, survey_estimator = survey_methods(experiment)
-        matcher, estimator = matcher or survey_matcher, estimator or survey_estimator
-    described = describe_pair(view, ref_kps, test_kps, descriptor, descriptor_params, detector, experiment,
-                              reference_count)
-    matches, row = match_metrics(view, described, DESCRIPTORS.get(descriptor).norm, matcher,
-                                 experiment.get("iou_threshold", 0.5))
-    if experiment.get("name") == "pose":
-        row.update(pose_metrics(view, described, matches, estimator, experiment["pose"], seed))
-    return row
+
+def build_methods(methods: dict | None, experiment: dict) -> tuple[dict, dict]:
+    """The built matchers and estimators of ``methods`` (see :func:`pair_shard`), ``{name: built}``; the estimators
+    are ``{None: None}`` outside the pose experiment."""
+    if methods is None:
+        matcher, estimator = survey_methods(experiment)
+        matchers, estimators = {"bf_ratio": matcher}, {"ransac": estimator}
+    else:
+        matchers = {name: MATCHERS.get(name).build(params) for name, params in methods["matchers"].items()}
+        estimators = {name: ESTIMATORS.get(name).build(params)
+                      for name, params in (methods.get("estimators") or {}).items()}
+    return matchers, (estimators if experiment.get("name") == "pose" else {None: None})
+
+
+def detect_views(detect, shard: dict, transform: str, transform_cfg: dict, method: dict, experiment: dict,
+                 seed: int) -> tuple[list, list[dict]]:
+    """Keypoints ``(reference, test)`` and a row of detection metrics per view of a shard; raises on failure.
+
+    ``detect(image, mask, detector, detector_params, selector, selector_params) -> (keypoints, n_detected,
+    seconds)`` detects and selects (a sweep's goes through the keypoint cache); the selector's ``n`` and the
+    "< N KPs" threshold are scaled to each view's area with ``experiment.budget_per_mpx``."""
+    keypoints, rows = [], []
+    for meta, view in views(shard, transform, transform_cfg, seed):
+        selection, min_keypoints = budget.scaled(method["selector_cfg"].get("params") or {},
+                                                 experiment.get("min_keypoints", 100), experiment, view.test.shape)
+        detection = (method["detector"], method["detector_cfg"].get("params") or {}, method["selector"], selection)
+        ref, n_ref, _ = detect(view.reference, view.reference_mask, *detection)
+        test, n_test, seconds = detect(view.test, view.test_mask, *detection)
+        row = {**meta, "n_detected": n_test, "n_kp_ref": len(ref), "n_kp_test": len(test), "t_detect": seconds}
+        row.update(detection_metrics(view, ref, test, experiment.get("iou_threshold", 0.5), min_keypoints))
+        keypoints.append((ref, test))
+        rows.append(row)
+    return keypoints, rows
+
+
+def pair_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list, detection_rows: list[dict],
+               detector: str, descriptor: str, descriptor_params: dict, experiment: dict, seed: int) -> list[dict]:
+    """A row of matching (and pose) metrics per view of a shard and reference count with the survey's matcher and
+    estimator built from ``experiment`` (the optimiser's settings); raises on failure."""
+    matchers, estimators = build_methods(None, experiment)
+    (result,) = evaluate_views(shard, transform, transform_cfg, keypoints, detection_rows, detector, descriptor,
+                               descriptor_params, experiment, seed, matchers, estimators).values()
+    if isinstance(result, Exception):
+        raise result
+    return result
+
+
+def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list, detection_rows: list[dict],
+                   detector: str, descriptor: str, descriptor_params: dict, experiment: dict, seed: int,
+                   matchers: dict, estimators: dict) -> dict[Combination, list[dict] | Exception]:
+    """Per (matcher, estimator): a row of matching (and pose) metrics per view of a shard and reference count, or
+    the exception that stopped that combination. Each pair is described once; each matcher matches it once and
+    every estimator works on those matches. A descriptor that fails raises (it stops every combination)."""
+    counts = experiment.get("reference_counts") or [None]
+    norm, iou = DESCRIPTORS.get(descriptor).norm, experiment.get("iou_threshold", 0.5)
+    results: dict[Combination, list[dict] | Exception] = {(m, e): [] for m in matchers for e in estimators}
+    # every image of the shard described once
+    memo = DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
+    for (meta, view), (ref, test), det_row in zip(views(shard, transform, transform_cfg, seed), keypoints,
+                                                   detection_rows):
+        view_seed = stable_seed(seed, meta["view"])
+        for count in counts:
+            described = describe_pair(view, ref, test, descriptor, descriptor_params, detector, experiment, count,
+                                      memo)
+            base = {**det_row, "reference_count": count if count is not None else math.nan}
+            for m, matcher in matchers.items():
+                live = [e for e in estimators if not isinstance(results[(m, e)], Exception)]
+                if not live:
+                    continue
+                try:
+                    matches, row = match_metrics(view, described, norm, matcher, iou)
+                except Exception as error:  # this matcher's combinations fail; the others go on
+                    results.update({(m, e): error for e in live})
+                    continue
+                for e in live:
+                    try:
+                        pose = {} if e is None else pose_metrics(view, described, matches, estimators[e],
+                                                                 experiment["pose"], view_seed)
+                    except Exception as error:
+                        results[(m, e)] = error
+                        continue
+                    results[(m, e)].append({**base, **row, **pose})
+    return results

@@ -12,7 +12,7 @@ import hashlib
 
 import numpy as np
 
-from gtsweep.stages.pairing import describe_timed
+from gtsweep.stages.applicability import describe_timed
 
 
 def _digest(array: np.ndarray) -> bytes:
@@ -23,10 +23,12 @@ def _digest(array: np.ndarray) -> bytes:
 class DescribeOnce:
     """A task's memo of described images: ``describe(image, keypoints, count)`` returns what
     ``describe_timed(image, keypoints[:count], ...)`` returns (kept keypoints, descriptors, seconds), calling the
-    descriptor once per distinct (image, keypoints); ``seconds`` is the time of the call that computed them."""
+    descriptor once per distinct (image, keypoints); ``seconds`` is the time of the call that computed them.
+    ``foreign_scale``: where foreign keypoints are described (``experiment.foreign_scale``; None: ``own``)."""
 
-    def __init__(self, descriptor: str, detector: str, params: dict):
+    def __init__(self, descriptor: str, detector: str, params: dict, foreign_scale: str | None = None):
         self.descriptor, self.detector, self.params = descriptor, detector, params
+        self.foreign_scale = foreign_scale
         self._found: dict[tuple, tuple] = {}
         self.computed = 0  # descriptor calls made (for tests and benchmarks)
 
@@ -34,6 +36,7 @@ class DescribeOnce:
         chosen = np.asarray(keypoints) if count is None else np.asarray(keypoints)[:count]
         key = (_digest(image), _digest(chosen))
         if key not in self._found:
-            self._found[key] = describe_timed(image, chosen, self.descriptor, self.detector, **self.params)
+            self._found[key] = describe_timed(image, chosen, self.descriptor, self.detector, self.foreign_scale,
+                                            **self.params)
             self.computed += 1
         return self._found[key]

@@ -28,7 +28,7 @@ import pandas as pd
 from gtsweep.core.errors import GtsweepError
 
 #: The experiments whose rows the schema describes, each extending the one before it.
-EXPERIMENTS = ("detection", "matching", "pose", "localization")
+EXPERIMENT_ROWS = ("detection", "matching", "pose", "localization")
 #: Columns that identify a view (not aggregated); the cell CSV keeps its transform too, so each row names its
 #: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a
 #: strength, pairs NaN; reference_count is the number of reference keypoints kept (survey Table 7), NaN without
@@ -53,6 +53,8 @@ HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose
 CURVES = {"detection": ("repeatability",), "matching": ("precision",), "pose": ("pose_success", "precision"),
           "localization": ("localization_success", "t_query")}
 AGGREGATIONS = ("mean", "ratio", "rate")
+#: Experiment kinds added by :func:`add_experiment` (a plug-in's): their rows have only their own metrics.
+STANDALONE: set[str] = set()
 SCHEMA_FILE = "gtsweep/evaluation/schema.py"
 
 
@@ -73,7 +75,9 @@ class Metric:
 
     @property
     def experiments(self) -> tuple[str, ...]:
-        return EXPERIMENTS[EXPERIMENTS.index(self.since):]
+        if self.since in STANDALONE:
+            return (self.since,)
+        return EXPERIMENT_ROWS[EXPERIMENT_ROWS.index(self.since):]
 
     @property
     def bounded(self) -> bool:
@@ -85,7 +89,7 @@ def _declare(*metrics: Metric) -> dict[str, Metric]:
     return {m.name: m for m in metrics}
 
 
-_DET, _MATCH, _POSE, _LOC = EXPERIMENTS
+_DET, _MATCH, _POSE, _LOC = EXPERIMENT_ROWS
 METRICS: dict[str, Metric] = _declare(
     Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)",
            interval=True),
@@ -155,8 +159,8 @@ METRICS: dict[str, Metric] = _declare(
 
 def _check(metric: Metric) -> Metric:
     problems = []
-    if metric.since not in EXPERIMENTS:
-        problems.append(f"experiment {metric.since!r} is not one of {', '.join(EXPERIMENTS)}")
+    if metric.since not in EXPERIMENT_ROWS and metric.since not in STANDALONE:
+        problems.append(f"experiment {metric.since!r} is not one of {', '.join([*EXPERIMENT_ROWS, *STANDALONE])}")
     if metric.aggregation not in AGGREGATIONS:
         problems.append(f"aggregation {metric.aggregation!r} is not one of {', '.join(AGGREGATIONS)}")
     if (metric.aggregation == "ratio") != (metric.of is not None):
@@ -185,6 +189,29 @@ def unregister(name: str) -> None:
     METRICS.pop(name, None)
 
 
+def add_experiment(name: str, headline_metric: str, *metrics: Metric, curves: tuple[str, ...] = ()) -> None:
+    """Declare a new experiment kind's rows: its own ``metrics`` (``since=name``), the headline the terminal
+    summary shows and the metrics drawn against strength. A plug-in's experiment kind calls this once."""
+    if name in EXPERIMENT_ROWS or name in STANDALONE:
+        raise GtsweepError(f"experiment '{name}' is already declared in {SCHEMA_FILE}")
+    STANDALONE.add(name)
+    for metric in metrics:
+        register(metric)
+    HEADLINE[name], CURVES[name] = headline_metric, curves
+    if not {headline_metric, *curves} <= set(METRICS):
+        remove_experiment(name)
+        raise GtsweepError(f"experiment '{name}': its headline and curves must name declared metrics")
+
+
+def remove_experiment(name: str) -> None:
+    """Undo :func:`add_experiment` (a test's clean-up)."""
+    for metric in [m for m in METRICS.values() if m.since == name]:
+        unregister(metric.name)
+    STANDALONE.discard(name)
+    HEADLINE.pop(name, None)
+    CURVES.pop(name, None)
+
+
 def metrics_of(experiment: str | None) -> list[Metric]:
     """The metrics of an experiment's rows in schema order (every metric for None)."""
     return [m for m in METRICS.values() if experiment is None or experiment in m.experiments]
@@ -196,7 +223,7 @@ def headline(experiment: str) -> str:
 
 def experiment_of(summary: Mapping) -> str:
     """A cell summary's experiment; summaries written before it was recorded: guessed from methods and metrics."""
-    if summary.get("experiment") in EXPERIMENTS:
+    if summary.get("experiment") in EXPERIMENT_ROWS or summary.get("experiment") in STANDALONE:
         return summary["experiment"]
     if not (summary.get("methods") or {}).get("descriptor"):
         return "detection"

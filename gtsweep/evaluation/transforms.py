@@ -221,6 +221,9 @@ STRENGTHS: dict[str, list[float]] = {
     "noise": [0, 5, 10, 15, 20, 25, 30, 35, 40],
     "gamma": [0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0],
 }
+#: What a transform's strength is, as the label of a plot's axis (the report's plots, MLflow's figures).
+STRENGTH_AXIS = {"rotation": "rotation angle (deg)", "translation": "IoU of reference and test masks",
+                 "noise": "noise sigma (gray levels)", "gamma": "gamma"}
 
 
 def synthesize(name: str, image, strength: float, seed: int = 0, **params) -> ViewPair:

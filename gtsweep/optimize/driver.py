@@ -2,11 +2,11 @@
 
 One Optuna study per selected detector (objective ``repeatability``) or per ``[detector, descriptor]`` pairing
 (objective ``pose_success``): :mod:`~gtsweep.optimize.targets`. Trials run on the sweep's executor (Ray tasks, or
-in-process with ``runner.backend=serial``): :mod:`~gtsweep.optimize.study`. The study lives in an RDB storage
+in-process with ``runner.backend=serial``): :mod:`~gtsweep.optimize.optuna_study`. The study lives in an RDB storage
 (sqlite by default): rerunning the same command continues it. Every trial is an MLflow child run of the study's
 run (:mod:`gtsweep.tracking.study`). The best parameters are written as ``./tuned/<group>/tuned/<name>.yaml`` in
 the working directory (``experiment.tuned_root``), a config file Hydra selects with ``detector=[tuned/<name>]``
-(``./tuned`` is on the search path before the package's own tuned configs; :mod:`~gtsweep.optimize.output`).
+(``./tuned`` is on the search path before the package's own tuned configs; :mod:`~gtsweep.optimize.tuned_files`).
 """
 from __future__ import annotations
 
@@ -17,14 +17,14 @@ from pathlib import Path
 from gtsweep.core.config import plain
 from gtsweep.core.interrupts import Interrupted
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-from gtsweep.optimize.output import (
+from gtsweep.optimize.tuned_files import (
     describe_best,
     format_summary,
     tuned_header,
     write_tuned,
 )
-from gtsweep.optimize.settings import job_transforms, read_settings
-from gtsweep.optimize.study import complete_trials, open_study, optimise
+from gtsweep.optimize.optuna_study import complete_trials, open_study, optimise
+from gtsweep.optimize.study_settings import job_transforms, read_settings
 from gtsweep.optimize.targets import build_targets, study_name
 from gtsweep.orchestration.cache import cache_directory
 from gtsweep.orchestration.executor import backend, check_address, make_executor

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
 
 from gtsweep.core.errors import GtsweepError
-from gtsweep.orchestration import tasks
-from gtsweep.orchestration.cache import KeypointCache
+from gtsweep.evaluation.evaluate import detect_views, pair_views
+from gtsweep.orchestration.cache import KeypointCache, detect_cached
 from gtsweep.orchestration.executor import describe_error
 from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.shards import shard_kind
@@ -67,9 +68,10 @@ def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
     for name, transform_cfg in job["transforms"].items():
         rows[name] = []
         for shard in shards[shard_kind(name, transform_cfg)]:
-            keypoints, found = tasks.detect_views(cache, shard, name, transform_cfg, method, experiment, seed)
+            keypoints, found = detect_views(partial(detect_cached, cache), shard, name, transform_cfg, method,
+                                            experiment, seed)
             if pose:
-                found = tasks.pair_views(shard, name, transform_cfg, keypoints, found, job["detector"],
+                found = pair_views(shard, name, transform_cfg, keypoints, found, job["detector"],
                                          job["descriptor"], job["descriptor_params"], experiment, seed)
             rows[name] += [{"repeatability": row["repeatability"], "few_keypoints": row["few_keypoints"],
                             "n_keypoints": float(row["n_kp_test"]), **{k: row[k] for k in PAIRING_KEYS if pose}}

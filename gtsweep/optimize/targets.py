@@ -8,7 +8,7 @@ from typing import Mapping
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.optimize.search_space import parse_space
-from gtsweep.optimize.settings import job_transforms
+from gtsweep.optimize.study_settings import job_transforms
 from gtsweep.orchestration.grid import declared_methods, resolve_group
 
 
@@ -36,7 +36,7 @@ def build_targets(cfg: Mapping, settings: Mapping) -> list[Target]:
     """One target per selected detector, or per pairing for the pose objective; search spaces checked."""
     from gtsweep.stages.describe import descriptor_params
     from gtsweep.stages.detect import DETECTORS
-    from gtsweep.stages.pairing import applicability
+    from gtsweep.stages.applicability import applicability
 
     detectors = resolve_group(cfg, "detector", search_space=True)
     if not detectors:

@@ -19,15 +19,16 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.settings import check_settings
+from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pairing import applicability
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import SELECTORS
 
-EXPERIMENTS = ("detection", "matching", "pose")
+#: The experiments on pairs of images (the survey's): each a grid of this module.
+PAIR_EXPERIMENTS = ("detection", "matching", "pose")
 TRANSFORM_KINDS = ("synthetic", "pairs")
 PAIR_TRANSFORMS = ("incremental", "absolute")
 #: The registry behind each grid group (the real-pair transforms have no parameters, so no entry).
@@ -203,8 +204,8 @@ def build_grid(cfg: Mapping) -> Grid:
     """The cells of the sweep described by ``cfg`` (the composed Hydra config); every setting checked first."""
     check_settings(cfg)
     experiment = plain(cfg.get("experiment")) or {}
-    if experiment.get("name") not in EXPERIMENTS:
-        raise BadInput(f"experiment must be one of {', '.join(EXPERIMENTS)}, got {experiment.get('name')!r}")
+    if experiment.get("name") not in PAIR_EXPERIMENTS:
+        raise BadInput(f"experiment must be one of {', '.join(PAIR_EXPERIMENTS)}, got {experiment.get('name')!r}")
     name = experiment["name"]
     if name != "detection":
         _check_moved(experiment)
@@ -214,17 +215,20 @@ def build_grid(cfg: Mapping) -> Grid:
         selectors=resolve_group(cfg, "selector"),
         descriptors=resolve_group(cfg, "descriptor") if name != "detection" else {},
         transforms=resolve_group(cfg, "transform"),
-        matchers=resolve_group(_surveys(cfg, "matcher"), "matcher") if name != "detection" else {},
-        estimators=resolve_group(_surveys(cfg, "estimator"), "estimator") if name == "pose" else {},
+        matchers=resolve_group(with_survey_method(cfg, "matcher"), "matcher") if name != "detection" else {},
+        estimators=resolve_group(with_survey_method(cfg, "estimator"), "estimator") if name == "pose" else {},
     )
-    pairings = _pairings(cfg, grid)
+    pairings = pairings_of(cfg, grid)
+    selected = selectors_of(cfg, grid)
     combinations = [(m, e) for m in grid.matchers for e in (grid.estimators or [None])]
     for transform in grid.transforms:
         for selector in grid.selectors:
             if name == "detection":
-                grid.cells += [Cell(d, selector, None, transform) for d in grid.detectors]
+                grid.cells += [Cell(d, selector, None, transform) for d in grid.detectors if selector in selected[d]]
                 continue
             for detector, descriptor in pairings:
+                if selector not in selected[detector]:
+                    continue
                 reason = applicability(detector, descriptor)
                 grid.cells += [Cell(detector, selector, descriptor, transform,
                                     reason or _matcher_na(grid, matcher, descriptor), matcher, estimator)
@@ -232,7 +236,29 @@ def build_grid(cfg: Mapping) -> Grid:
     return grid
 
 
-def _surveys(cfg: Mapping, group: str) -> Mapping:
+def selectors_of(cfg: Mapping, grid) -> dict[str, list[str]]:
+    """The selectors each detector of ``grid`` runs with: the grid's selectors, or the one ``selector_for`` names
+    for it (``selector_for: {mser: anms}``: MSER with ANMS, every other detector with the selector group; the
+    survey, section 4.1, kept NMS for all detectors but MSER). A selector named there and not in the selector group
+    is added to ``grid.selectors`` with its default parameters; a detector named there and not in the grid is
+    ignored (a preset's choice for a detector the command line left out)."""
+    pinned = plain(cfg.get("selector_for")) or {}
+    if not isinstance(pinned, dict) or not all(isinstance(v, str) for v in pinned.values()):
+        raise BadInput(f"selector_for must map a detector to one selector, e.g. {{mser: anms}}; got {pinned!r}")
+    for detector, selector in pinned.items():
+        DETECTORS.get(detector)  # an unknown name: one line with the choices
+        if selector not in grid.selectors:
+            grid.selectors[selector] = resolve_group({"selector": {selector: {"params": {}}}}, "selector")[selector]
+    return {d: [pinned[d]] if d in pinned else [s for s in grid.selectors if s not in _only_pinned(pinned, cfg)]
+            for d in grid.detectors}
+
+
+def _only_pinned(pinned: dict, cfg: Mapping) -> set[str]:
+    """Selectors that are in the grid only because ``selector_for`` names them (not in the selector group)."""
+    return set(pinned.values()) - set(plain(cfg.get("selector")) or {})
+
+
+def with_survey_method(cfg: Mapping, group: str) -> Mapping:
     """``cfg``, with the survey's method for ``group`` when it has no such group at all."""
     if cfg.get(group) is not None:
         return cfg
@@ -255,7 +281,7 @@ def _matcher_na(grid: Grid, matcher: str, descriptor: str) -> str | None:
     return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm, descriptor)
 
 
-def _pairings(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:
+def pairings_of(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:
     wanted = plain(cfg.get("pairings"))
     if wanted is None:
         return [(d, s) for d in grid.detectors for s in grid.descriptors]

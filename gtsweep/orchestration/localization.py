@@ -1,5 +1,5 @@
 """``experiment=localization``: build a map per floor and localize queries against it, for every cell of
-detector x selector x descriptor x matcher x estimator (issue 19; Micro-GPS, Zhang et al. ICRA 2019).
+detector x selector x descriptor x matcher x estimator (as Micro-GPS localizes, Zhang et al. ICRA 2019).
 
 The task graph: mapping images are detected and described in shards (``runner.shard_size`` images per task,
 through the keypoint cache), then assembled into one map per (detector, selector, descriptor, floor), which is cached
@@ -10,7 +10,6 @@ A cell is written when all its query shards are in (``cells/<cell>.csv`` with on
 from __future__ import annotations
 
 import logging
-import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,25 +18,21 @@ from typing import Mapping
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import Choice, Range, check_all
-from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.core import read_gray
+from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.orchestration import loctasks
-from gtsweep.orchestration.cache import cache_state
-from gtsweep.orchestration.executor import backend, check_address, make_executor
-from gtsweep.orchestration.grid import _pairings, _surveys, declared_methods, resolve_group
-from gtsweep.orchestration.progress import Progress
-from gtsweep.orchestration.results import ResultStore
+from gtsweep.orchestration.executor import make_executor
+from gtsweep.orchestration.grid import declared_methods, pairings_of, resolve_group, selectors_of, with_survey_method
 from gtsweep.orchestration.runner import RunStats
 from gtsweep.orchestration.settings import check_settings
-from gtsweep.orchestration.sweep import SweepOutcome, _write_run_record, cell_summary
+from gtsweep.orchestration.skeleton import CellWork, SweepOutcome, run_sweep
+from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pairing import applicability
 
 log = logging.getLogger(__name__)
-EXPERIMENT = "localization"
 SETTINGS = {
     "experiment.voting": Choice((True, False)),
     "experiment.vote_cell": Range(0, None, low_open=True),
@@ -105,11 +100,12 @@ def build_localization_grid(cfg: Mapping) -> LocGrid:
     check_data_options(plain(cfg.get("experiment")) or {})
     grid = LocGrid(plain(cfg.get("experiment")) or {}, resolve_group(cfg, "detector"),
                    resolve_group(cfg, "selector"), resolve_group(cfg, "descriptor"),
-                   resolve_group(_surveys(cfg, "matcher"), "matcher"),
-                   resolve_group(_surveys(cfg, "estimator"), "estimator"))
-    for detector, descriptor in _pairings(cfg, grid):
+                   resolve_group(with_survey_method(cfg, "matcher"), "matcher"),
+                   resolve_group(with_survey_method(cfg, "estimator"), "estimator"))
+    selected = selectors_of(cfg, grid)
+    for detector, descriptor in pairings_of(cfg, grid):
         norm = DESCRIPTORS.get(descriptor).norm
-        for selector in grid.selectors:
+        for selector in selected[detector]:
             for matcher, matcher_cfg in grid.matchers.items():
                 reason = applicability(detector, descriptor) or matcher_applicability(
                     MATCHERS.get(matcher).build(matcher_cfg["params"]), norm, descriptor, against_map=True)
@@ -118,64 +114,30 @@ def build_localization_grid(cfg: Mapping) -> LocGrid:
     return grid
 
 
-def run_localization(cfg: Mapping, output_dir: str | Path, hooks=(), on_start=None, progress: Progress | None = None,
-                     on_checked=None) -> SweepOutcome:
-    """Evaluate the localization grid of ``cfg`` into ``output_dir`` (as :func:`gtsweep.orchestration.sweep.
-    run_sweep`: finished cells of an earlier run with the same configuration are kept)."""
-    start = time.perf_counter()
-    progress = progress or Progress(enabled=False)
-    grid = build_localization_grid(cfg)
-    runner_cfg = plain(cfg.get("runner")) or {}
-    if backend(runner_cfg) == "ray":
-        check_address(runner_cfg)
-    if on_checked is not None:
-        on_checked()
-    cache_dir, cache_note = cache_state(cfg)
-    progress.phase("render data set")
+def _load(cfg: Mapping, grid: LocGrid):
     data = load_localization(cfg["dataset"], grid.experiment)
     log.info("localization data '%s': %s mapping images, %d queries, map sizes %s", data.name,
              {t: len(m) for t, m in data.maps.items()}, len(data.queries), data.map_sizes)
-    seed = int(cfg.get("seed", 0))
-    store = ResultStore(output_dir)
-    if on_start is not None:
-        on_start(grid, data.fingerprint)
-    hashes = {c.key: grid.cell_hash(c, data.fingerprint, seed) for c in grid.cells}
-    summaries: dict[str, dict] = {}
+    return data
 
-    def finish(cell: LocCell, outcome: Mapping) -> None:
-        summary = cell_summary(cell, hashes[cell.key], outcome, EXPERIMENT)
-        store.write_cell(cell.key, summary, outcome.get("rows"))
-        summaries[cell.key] = summary
-        log.info("cell %s: %s%s", cell.key, summary["status"], f" ({summary.get('reason')})"
-                 if summary.get("reason") else "")
-        progress.cell_done()
-        for hook in hooks:
-            hook(cell, summary, outcome.get("rows"))
 
-    pending, resumed = [], 0
-    for cell in grid.cells:
-        done = store.complete(cell.key, hashes[cell.key])
-        if done is not None:
-            summaries[cell.key], resumed = done, resumed + 1
-            for hook in hooks:
-                hook(cell, done, None)
-        elif cell.na_reason is None:
-            pending.append(cell)
+def _evaluate(grid: LocGrid, data, cells: list[LocCell], runner_cfg: dict, seed: int, cache_dir, finish,
+              on_started) -> RunStats:
     stats = RunStats()
-    executor = make_executor(runner_cfg) if pending else None
-    progress.phase("evaluate", total=len(grid.cells), done=resumed)
-    for cell in grid.cells:
-        if cell.key not in summaries and cell.na_reason is not None:
-            finish(cell, {"na": cell.na_reason})
-    if pending:
-        _run(grid, data, pending, executor, runner_cfg, seed, cache_dir, finish, stats)
-    ordered = [summaries[c.key] for c in grid.cells]
-    outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, data.fingerprint,
-                           time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
-                           cache=cache_note)
-    outcome.table = store.write_table(ordered)
-    _write_run_record(outcome, data)
-    return outcome
+    executor = make_executor(runner_cfg)
+    on_started()
+    _run(grid, data, cells, executor, runner_cfg, seed, cache_dir, finish, stats)
+    return stats
+
+
+#: ``experiment=localization``: a map per floor, queries against it.
+LOCALIZATION = CellWork(build_localization_grid, _load, _evaluate)
+
+
+def run_localization(cfg: Mapping, output_dir: str | Path, **options) -> SweepOutcome:
+    """Evaluate the localization grid of ``cfg`` into ``output_dir`` on the sweep skeleton (:func:`gtsweep.
+    orchestration.skeleton.run_sweep`: finished cells of an earlier run with the same configuration are kept)."""
+    return run_sweep(cfg, output_dir, work=LOCALIZATION, **options)
 
 
 def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, seed: int, cache_dir, finish,
@@ -204,7 +166,8 @@ def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, 
         method = {"detector": detector, "detector_params": grid.detectors[detector]["params"],
                   "selector": selector, "selector_params": grid.selectors[selector]["params"],
                   "descriptor": descriptor,
-                  "descriptor_params": descriptor_params(grid.descriptors[descriptor], detector)}
+                  "descriptor_params": descriptor_params(grid.descriptors[descriptor], detector),
+                  "foreign_scale": grid.experiment.get("foreign_scale")}
         estimators = {c.estimator: grid.estimators[c.estimator]["params"] for c in members}
         job = (detector, selector, descriptor, matcher)
         tracker[job] = {"cells": members, "remaining": 0, "rows": defaultdict(list), "failure": None,

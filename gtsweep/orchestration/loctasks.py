@@ -25,11 +25,11 @@ from gtsweep.datasets.core import read_gray
 from gtsweep.orchestration.cache import KeypointCache, detect_cached, library_versions
 from gtsweep.orchestration.grid import declare
 from gtsweep.orchestration.tasks import counts, failure
+from gtsweep.stages.applicability import describe_timed
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns
 from gtsweep.stages.match import MATCHERS
-from gtsweep.stages.pairing import describe_timed
 from gtsweep.stages.pose import ESTIMATORS
 
 MAP_FIELDS = ("xy", "angle", "descriptors", "image", "build_seconds")
@@ -66,7 +66,7 @@ def _detect_describe(cache: KeypointCache, image, method: dict):
     keypoints, _, t_detect = detect_cached(cache, image, None, method["detector"], method["detector_params"],
                                            method["selector"], method["selector_params"])
     kept, descriptors, t_describe = describe_timed(image, keypoints, method["descriptor"], method["detector"],
-                                                   **method["descriptor_params"])
+                                                   method.get("foreign_scale"), **method["descriptor_params"])
     return keypoints, kept, descriptors, t_detect, t_describe
 
 

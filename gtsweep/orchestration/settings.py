@@ -10,6 +10,7 @@ from typing import Mapping
 
 from gtsweep.core.config import plain
 from gtsweep.core.ranges import Choice, ListOf, Range, check_all
+from gtsweep.stages.scales import FOREIGN_SCALES
 
 _COUNT = Range(1, None, integer=True)
 _POSITIVE = Range(0, None, low_open=True)
@@ -28,6 +29,7 @@ SETTINGS = {
     "experiment.pose.max_orientation_error": Range(0, 180, low_open=True),
     "experiment.reference_counts": ListOf(_COUNT, optional=True),
     "experiment.test_count": Range(1, None, integer=True, optional=True),
+    "experiment.foreign_scale": Choice(FOREIGN_SCALES, optional=True),
     "runner.backend": Choice(("ray", "serial")),
     "runner.num_cpus": Range(1, None, integer=True, optional=True),
     "runner.shard_size": _COUNT,

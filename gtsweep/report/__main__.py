@@ -1,7 +1,6 @@
+"""``python -m gtsweep.report``: the report command, dispatched by the run's recorded experiment kind."""
 import sys
 
-from gtsweep.report.localization import is_localization
-from gtsweep.report.localization import main as localization_main
-from gtsweep.report.output import main
+from gtsweep.experiments.report_command import main
 
-sys.exit(localization_main(sys.argv[1:]) if is_localization(sys.argv[1:]) else main())
+sys.exit(main())

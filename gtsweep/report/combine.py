@@ -10,6 +10,8 @@ Written into ``<sweep dir>/combined/``::
                      a glob of the jobs' */results.csv must not find it)
     summary.csv      per setting and cell: <metric>_mean, <metric>_std, n (repeats that evaluated it)
     summary.md       the headline metric per setting and cell as mean ± std (n)
+    settings.md/.csv several settings: pose success per cell and setting with intervals, paired tests against
+                     the first setting, the survey's value (gtsweep.report.settings)
     report/          the survey's tables and plots of the means (report/<setting>/ when there are several)
 """
 from __future__ import annotations
@@ -27,6 +29,7 @@ from gtsweep.report.breakdown import mean_summary
 from gtsweep.report.output import write_report
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import load_scale
+from gtsweep.report.settings import write_settings
 from gtsweep.report.tables import ALPHA, load_summaries
 
 SEED = re.compile(r"^\+*seed=(.*)$")
@@ -89,6 +92,7 @@ def combine(sweep_dir: str | Path, plots: bool = True, by: str | None = None, al
             files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots,
                                   views={k: pd.concat(v, ignore_index=True) for k, v in views.items()}, by=by,
                                   alpha=alpha, scale=load_scale(jobs[0]["dir"]))[1]
+    files += write_settings(out, jobs, by_job, {job["job"]: load_views(job["dir"]) for job in jobs}, alpha)
     return files
 
 

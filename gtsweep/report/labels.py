@@ -2,6 +2,7 @@
 that one of ours stands in for."""
 from __future__ import annotations
 
+from gtsweep.evaluation.transforms import STRENGTH_AXIS  # noqa: F401 (the plots' axes; declared with the transforms)
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.match import MATCHERS
@@ -9,8 +10,6 @@ from gtsweep.stages.pose import ESTIMATORS
 
 #: The strength of each synthetic transform, with its unit (survey section 3), for axes and table cells.
 STRENGTH_UNIT = {"rotation": "deg", "translation": "IoU", "noise": "sigma, gray levels", "gamma": "gamma"}
-STRENGTH_AXIS = {"rotation": "rotation angle (deg)", "translation": "IoU of reference and test masks",
-                 "noise": "noise sigma (gray levels)", "gamma": "gamma"}
 
 #: Our learned feature is compared with the survey's learned one.
 PAPER_NAME = {"xfeat": "LIFT"}

@@ -153,36 +153,3 @@ def format_localization(outcome, tables: list[Table] = ()) -> str:
     for table in tables:
         lines += ["", table.markdown()]
     return "\n".join(lines)
-
-
-def is_localization(argv: list[str]) -> bool:
-    """``python -m gtsweep.report DIR`` names a localization run's output directory (its cells say so)."""
-    import json
-
-    sources = [a for a in argv if not a.startswith("-")]
-    cells = sorted((Path(sources[0]) / "cells").glob("*.json")) if sources and "--mlflow" not in argv else []
-    try:
-        return bool(cells) and json.loads(cells[0].read_text()).get("experiment") == "localization"
-    except (OSError, ValueError):
-        return False
-
-
-def main(argv: list[str]) -> int:
-    """``python -m gtsweep.report <localization output dir> [--out DIR] [--no-plots]``: rebuild its report."""
-    import argparse
-
-    from gtsweep.report.scale import load_scale
-    from gtsweep.report.tables import load_summaries
-
-    parser = argparse.ArgumentParser(prog="python -m gtsweep.report", description=__doc__.splitlines()[0])
-    parser.add_argument("source")
-    parser.add_argument("--out")
-    parser.add_argument("--no-plots", action="store_true")
-    args = parser.parse_args(argv)
-    out = Path(args.out or Path(args.source) / "report")
-    tables, files = write_localization_report(load_summaries(args.source), out, not args.no_plots)
-    for table in tables:
-        print(table.markdown(), end="\n\n")
-    print(load_scale(args.source).line(detection=False))
-    print(f"{len(files)} files in {out}")
-    return 0

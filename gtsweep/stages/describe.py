@@ -1,10 +1,11 @@
 """Feature description (survey section 2.3): a registry of descriptors, their norms and their requirements.
 
 A descriptor declares which keypoints it can describe (``only_detectors``, ``excluded_detectors``,
-``requires_orientation``); :mod:`gtsweep.stages.pairing` turns that into the survey's NA cells (section 5.2),
-since it needs the detectors' capabilities too. Foreign keypoints are normalised before description: their
-``octave`` is reset to 0 (SIFT packs a large integer there and MSD uses 0–14; OpenCV's ORB/SIFT would read it as a
-pyramid level and try to allocate ~68 GB), and keypoints without an orientation are described upright (angle 0).
+``requires_orientation``); :mod:`gtsweep.stages.applicability` turns that into the survey's NA cells (section 5.2),
+since it needs the detectors' capabilities too. Foreign keypoints (another detector family's) get the octave field
+of the descriptor's own scale space that their size implies (``scale_space``; ``experiment.foreign_scale``
+chooses another option: :mod:`gtsweep.stages.scales`), and keypoints without an orientation are described upright
+(angle 0).
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from gtsweep.core.registry import (
     spec_declare,
 )
 from gtsweep.stages import keypoints as kp
+from gtsweep.stages import scales
 from gtsweep.stages.learned import ALIKED_VARIANTS
 
 _x = cv2.xfeatures2d
@@ -39,10 +41,16 @@ class DescriptorSpec(Method):
     only_detectors: tuple[str, ...] | None = None  # None: any detector
     excluded_detectors: dict[str, str] = field(default_factory=dict)  # detector -> reason
     learned: bool = False
+    #: How it reads a keypoint's octave field (a key of :data:`gtsweep.stages.scales.SCALE_SPACES`); None: it
+    #: ignores the field, and foreign keypoints get octave 0.
+    scale_space: str | None = None
 
     def __post_init__(self):
         if self.norm not in (HAMMING, L2):
             raise BadInput(f"descriptor '{self.name}': norm must be {HAMMING} (binary) or {L2}, got {self.norm!r}")
+        if self.scale_space is not None and self.scale_space not in scales.SCALE_SPACES:
+            raise BadInput(f"descriptor '{self.name}': scale_space must be one of "
+                           f"{', '.join(scales.SCALE_SPACES)} or null, got {self.scale_space!r}")
 
 
 _descriptor = functools.partial(DescriptorSpec, "descriptor")
@@ -53,7 +61,7 @@ _BLID = {"scale_factor": 5.0}  # BEBLID/TEBLID; per_detector in their YAML adapt
 
 DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     _descriptor("orb", "ORB", cv2.ORB_create, {"edgeThreshold": 31, "patchSize": 31, "WTA_K": 2}, norm=HAMMING,
-                excluded_detectors={"sift": _ORB_SCALES}),
+                excluded_detectors={"sift": _ORB_SCALES}, scale_space="orb"),
     # The survey's BRIEF uses the keypoint orientation (it collapses on unoriented keypoints for absolute pairs).
     _descriptor("brief", "BRIEF", _x.BriefDescriptorExtractor_create, {"bytes": 32, "use_orientation": True},
                 norm=HAMMING),
@@ -61,7 +69,8 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
                 {"bytes": 32, "rotationInvariance": True, "half_ssd_size": 3, "sigma": 2.0}, norm=HAMMING),
     _descriptor("surf", "SURF", lazy_factory("gtsweep.stages.surf", "SURF_create"),
                 {"hessianThreshold": 100.0, "nOctaves": 4, "nOctaveLayers": 3, **_NONLINEAR}, norm=L2),
-    _descriptor("sift", "SIFT", cv2.SIFT_create, {"nOctaveLayers": 3, "sigma": 1.6}, norm=L2),
+    _descriptor("sift", "SIFT", cv2.SIFT_create, {"nOctaveLayers": 3, "sigma": 1.6}, norm=L2,
+                scale_space="sift"),
     # descriptor_type 5 = DESCRIPTOR_MLDB
     _descriptor("akaze", "AKAZE", _x.AKAZE_create,
                 {"descriptor_type": 5, "descriptor_size": 0, "descriptor_channels": 3}, norm=HAMMING,
@@ -87,8 +96,6 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     _descriptor("disk", "DISK", _LEARNED("DISK_create"), {}, norm=L2, learned=True),
 ], spec=DescriptorSpec, make=spec_declare(DescriptorSpec, "descriptor"))
 
-#: The registry's lookup under its former name (callers outside the science layers still use it).
-
 #: Detectors whose keypoints carry an ``octave`` that the same-named descriptor understands.
 _OWN_OCTAVE = {"orb", "sift", "akaze", "kaze", "brisk", "surf"}
 
@@ -104,39 +111,54 @@ def descriptor_params(descriptor_cfg: dict, detector: str) -> dict:
     return params
 
 
-def describe(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str, **params):
+def describe(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str, foreign_scale: str | None = None,
+             **params):
     """Describe ``keypoints`` (an ``(N, 7)`` array from ``detector``) in ``image`` with descriptor ``name``.
 
     Returns ``(kept_keypoints, descriptors)``: descriptors may drop keypoints (e.g. near the border), so the
     returned keypoints are the ones aligned with the descriptor rows. Binary descriptors are uint8, real-valued
-    ones float32. It does not judge the pairing: :mod:`gtsweep.stages.pairing` says which the survey calls NA.
+    ones float32. ``foreign_scale`` (one of :data:`gtsweep.stages.scales.FOREIGN_SCALES`, None: ``own``) says
+    where foreign keypoints are described. It does not judge the pairing: :mod:`gtsweep.stages.applicability` says which
+    the survey calls NA.
     """
-    kept, descriptors, _ = describe_timed(image, keypoints, name, detector, **params)
+    kept, descriptors, _ = describe_timed(image, keypoints, name, detector, foreign_scale, **params)
     return kept, descriptors
 
 
-def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str, **params):
+def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
+                   foreign_scale: str | None = None, **params):
     """:func:`describe` plus the wall time in seconds of the descriptor call itself."""
     spec = DESCRIPTORS.get(name)
     extractor = spec.build(params)
-    prepared = _prepare(keypoints, detector, name)
+    prepared = prepare_keypoints(keypoints, detector, spec, extractor, np.shape(image)[:2],
+                                 scales.check_foreign_scale(foreign_scale))
     if len(prepared) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), 0.0
     start = time.perf_counter()
     try:
-        found, descriptors = extractor.compute(image, kp.to_keypoints(prepared))
+        if hasattr(extractor, "compute_array"):  # gtsweep's own extractors (NumPy SURF): arrays in and out
+            kept, descriptors = extractor.compute_array(image, kp.float32_exact(prepared))
+        else:
+            found, descriptors = extractor.compute(image, kp.to_keypoints(prepared))
+            kept = kp.to_array(found) if descriptors is not None else kp.empty()
     except cv2.error as e:
         raise GtsweepError(f"descriptor '{name}' failed on {detector} keypoints: {reason_line(e)}") from None
     seconds = time.perf_counter() - start
-    if descriptors is None or len(found) == 0:
+    if descriptors is None or len(kept) == 0:
         return kp.empty(), _empty_descriptors(spec, extractor), seconds
-    return kp.to_array(found), np.ascontiguousarray(descriptors), seconds
+    return kept, np.ascontiguousarray(descriptors), seconds
 
 
-def _prepare(keypoints: np.ndarray, detector: str, descriptor: str) -> np.ndarray:
+def prepare_keypoints(keypoints: np.ndarray, detector: str, spec: DescriptorSpec, extractor, shape,
+                      foreign_scale: str = scales.OWN) -> np.ndarray:
+    """A copy of ``keypoints`` as descriptor ``spec`` (built as ``extractor``) is given them in an image of
+    ``shape``: the octave field of foreign keypoints set by ``foreign_scale`` (:mod:`gtsweep.stages.scales`; own
+    keypoints keep theirs), unoriented keypoints at angle 0."""
     prepared = np.array(keypoints, dtype=np.float64, copy=True).reshape(-1, len(kp.COLUMNS))
-    if detector != descriptor or detector not in _OWN_OCTAVE:
-        prepared[:, kp.OCTAVE] = 0
+    if detector != spec.name or detector not in _OWN_OCTAVE:
+        prepared[:, kp.OCTAVE] = scales.foreign_octaves(
+            prepared[:, kp.SIZE], prepared[:, kp.OCTAVE], spec.scale_space, foreign_scale, extractor, shape,
+            f"descriptor '{spec.name}' on {detector} keypoints")
     prepared[prepared[:, kp.ANGLE] < 0, kp.ANGLE] = 0.0
     return prepared
 

@@ -110,9 +110,6 @@ DETECTORS: Registry[DetectorSpec] = Registry("detector", [
               orientation=False, learned=True, count_param="max_num_keypoints"),
 ], spec=DetectorSpec, make=spec_declare(DetectorSpec, "detector"))
 
-#: The registry's lookup under its former name (callers outside the science layers still use it).
-
-
 def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> np.ndarray:
     """Detect keypoints in a uint8 gray ``image`` (optionally inside ``mask``) with detector ``name``.
 

@@ -43,6 +43,13 @@ def to_keypoints(array: np.ndarray) -> list[cv2.KeyPoint]:
     return list(map(cv2.KeyPoint, *floats, *ints))
 
 
+def float32_exact(array: np.ndarray) -> np.ndarray:
+    """The ``(N, 7)`` array as a round trip through ``cv2.KeyPoint`` leaves it: the float columns rounded to
+    float32, octave and class_id to integers (what an extractor taking arrays must see to agree with OpenCV's)."""
+    a = np.asarray(array, dtype=np.float64).reshape(-1, len(COLUMNS))
+    return np.column_stack([a[:, :OCTAVE].astype(np.float32).astype(np.float64), np.rint(a[:, OCTAVE:])])
+
+
 def sort_by_response(array: np.ndarray) -> np.ndarray:
     """Keypoints sorted by response, largest first; ties keep their detection order (stable)."""
     order = np.argsort(-array[:, RESPONSE], kind="stable")

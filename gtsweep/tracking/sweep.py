@@ -5,32 +5,55 @@ logs, with ``MlflowClient.log_batch`` (about 4x faster than one call per metric)
 ``sqlite:///<cwd>/mlflow.db`` (MLflow 3's default); ``mlflow.tracking_uri`` or ``MLFLOW_TRACKING_URI`` selects a
 server. A resumed sweep reuses its parent run and logs only cells that have no child run yet.
 
-As the UI expects (:mod:`gtsweep.tracking.tags`): the experiment is marked as model development, every run carries
-MLflow's source, user and git-commit tags, a child run is named shortly (``sift·brief·inc``), starts and ends
-when its cell's tasks ran, and holds the cell's per-view CSV; the jobs of a multirun nest under one run.
+As the UI expects (:mod:`gtsweep.tracking.tags`): the experiment is marked as model development and has a saved
+view for comparing pairings (:mod:`~gtsweep.tracking.views`), every run carries MLflow's source, user and
+git-commit tags, run names are unique in the experiment (a child's: ``sift·brief·inc · seed=1``), a child run starts
+and ends when its cell's tasks ran and holds the cell's per-view rows (``views.csv``) and, with strengths, its
+curves as a figure (:mod:`~gtsweep.tracking.figures`); the jobs of a multirun nest under one run. What identifies
+a run is logged as params (:mod:`~gtsweep.tracking.params`); metrics other than the headline ones are grouped under
+a prefix (:mod:`~gtsweep.tracking.metricnames`).
 """
 from __future__ import annotations
 
 import json
 import math
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Mapping
 
 from gtsweep.core.errors import BadInput
-from gtsweep.tracking.store import flatten, git_commit, open_store, tracking_uri
+from gtsweep.tracking.figures import FIGURE, strength_figure
+from gtsweep.tracking.metricnames import SWEEP, mlflow_name, summary_name
+from gtsweep.tracking.params import (
+    METHOD_TAG,
+    batches,
+    cell_params,
+    config_params,
+    method_tags,
+    parsed_config,
+    written_options,
+)
+from gtsweep.tracking.store import git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (
     cell_names,
+    child_name,
+    cluster_tags,
     model_development,
     ms,
     quiet_mlflow,
     source_tags,
+    unique_name,
 )
+from gtsweep.tracking.views import runs_url, save_pairings_view
 
 PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
+RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.skeleton)
+VIEWS_FILE = "views.csv"  # a child run's per-view rows (one name in every run: MLflow's compare page shows them)
 
 
 VIEWS_TAG = "gtsweep.n_views"
@@ -71,13 +94,17 @@ class SweepTracker:
         """Create (or, on resume, reopen) the parent run."""
         self.open()
         model_development(self.client, self.experiment_id)
+        save_pairings_view(self.client, self.experiment_id, CELL_TAG)
         self.names = cell_names(grid.cells, several_selectors=len(grid.selectors) > 1)
         self.source = source_tags()
+        self.config, self.fingerprint, self.written = parsed_config(self.config_yaml), dataset_fingerprint, \
+            written_options()
         self.output_dir.mkdir(parents=True, exist_ok=True)
         record = self.output_dir / PARENT_RECORD
         if record.exists():
             self.parent_id = json.loads(record.read_text())["parent_run_id"]
             self.client.update_run(self.parent_id, status="RUNNING")
+            self.run_name = self.client.get_run(self.parent_id).info.run_name
             self.logged = self._logged_children(self.experiment_id)
         else:
             tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.git_commit": git_commit(),
@@ -86,8 +113,11 @@ class SweepTracker:
                     **{f"gtsweep.version.{k}": str(v) for k, v in versions.items()}}
             if self.nest_under:
                 tags["mlflow.parentRunId"] = self.nest_under
+            self.run_name = unique_name(self.client, self.experiment_id, self.run_name)
             run = self.client.create_run(self.experiment_id, run_name=self.run_name, tags=tags)
             self.parent_id = run.info.run_id
+            for params in batches(config_params(self.config, dataset_fingerprint)):
+                self.client.log_batch(self.parent_id, params=params)
             self.client.log_text(self.parent_id, self.config_yaml, "config.yaml")
             record.write_text(json.dumps({"parent_run_id": self.parent_id, "tracking_uri": self.uri}))
         self.grid = grid
@@ -104,47 +134,54 @@ class SweepTracker:
                 if r.data.tags.get(STATUS_TAG) != "error"}
 
     def log_cell(self, cell, summary: Mapping, rows=None) -> None:
-        """One child run: the cell's full method configuration, its schema metrics, steps per strength, NA reason,
-        its per-view CSV; it starts and ends when the cell's tasks ran."""
-        from mlflow.entities import Metric, Param, RunTag
+        """One child run: what identifies the cell (methods as written, seed, data set, method configurations), its
+        schema metrics, steps per strength and their figure, NA reason, its per-view rows; it starts and ends when
+        the cell's tasks ran."""
+        from mlflow.entities import Metric, RunTag
 
         from gtsweep.evaluation import schema
 
         if (cell.key, summary.get("hash")) in self.logged:
             return
-        config = self.grid.cell_config(cell, "", 0)
-        params = {**flatten({k: v for k, v in cell.methods.items() if v is not None}),
-                  **flatten({"detector": config["detector"], "selector": config["selector"],
-                             "descriptor": config["descriptor"], "transform": config["transform"],
-                             "experiment": config["experiment"],
-                             **{k: config[k] for k in ("matcher", "estimator") if k in config}})}
+        params = cell_params(cell, self.grid.cell_config(cell, "", 0), self.config, self.fingerprint, self.written)
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
-                STATUS_TAG: summary["status"], **self.source}
+                STATUS_TAG: summary["status"], **method_tags(cell), **self.source}
         if summary.get("reason"):
             tags[REASON_TAG] = str(summary["reason"])[:5000]
         if summary.get("n_views") is not None:  # views (or pairs) per cell: the report's table titles say it
             tags[VIEWS_TAG] = str(summary["n_views"])
-        run = self.client.create_run(self.experiment_id, run_name=self.names.get(cell.key, cell.key), tags=tags,
+        name = child_name(self.names.get(cell.key, cell.key), self.run_name)
+        run = self.client.create_run(self.experiment_id, run_name=name, tags=tags,
                                      start_time=ms(summary.get("started")))
         now = ms(summary.get("ended")) or int(time.time() * 1000)
         # undefined values (e.g. ambiguity when no keypoint repeats) are logged as NaN: every metric is present
         values = summary.get("metrics") or {}
-        metrics = [Metric(name, _number(values[name]), now, 0) for name in schema.ordered(values)]
+        metrics = [Metric(mlflow_name(key), _number(values[key]), now, 0) for key in schema.ordered(values)]
         metrics += self._step_metrics(summary, now)
         for step_key in schema.STEP_KEYS:
             if summary.get(f"by_{step_key}"):
                 tags[f"gtsweep.step_scale.{step_key}"] = str(step_scale([float(v) for v in summary[f"by_{step_key}"]]))
-        params = [Param(k[:250], v[:6000]) for k, v in params.items()]
         tags = [RunTag(k, v) for k, v in tags.items() if k != "mlflow.parentRunId"]
-        for start in range(0, max(len(metrics), 1), MAX_BATCH):  # MLflow takes at most 1000 metrics per call
-            self.client.log_batch(run.info.run_id, metrics=metrics[start:start + MAX_BATCH],
-                                  params=params if start == 0 else [], tags=tags if start == 0 else [])
-        per_view = self.output_dir / "cells" / f"{cell.key}.csv"
-        if per_view.exists():
-            self.client.log_artifact(run.info.run_id, str(per_view))
+        params = list(batches(params))
+        # MLflow takes at most 1000 metrics and 100 params per call
+        for index in range(max(len(params), math.ceil(len(metrics) / MAX_BATCH), 1)):
+            self.client.log_batch(run.info.run_id, metrics=metrics[index * MAX_BATCH:(index + 1) * MAX_BATCH],
+                                  params=params[index] if index < len(params) else [],
+                                  tags=tags if index == 0 else [])
+        self._log_files(run.info.run_id, cell, summary, name)
         self.client.set_terminated(run.info.run_id, "FINISHED" if summary["status"] != "error" else "FAILED",
                                    end_time=ms(summary.get("ended")))
         self.logged.add((cell.key, summary.get("hash")))
+
+    def _log_files(self, run_id: str, cell, summary: Mapping, name: str) -> None:
+        """The cell's per-view rows as ``views.csv`` and, with strengths, its curves as a figure."""
+        per_view = self.output_dir / "cells" / f"{cell.key}.csv"
+        if per_view.exists():
+            with tempfile.TemporaryDirectory() as tmp:
+                self.client.log_artifact(run_id, str(shutil.copyfile(per_view, Path(tmp) / VIEWS_FILE)))
+        figure = strength_figure({"methods": cell.methods, **summary}, self.grid.experiment["name"], name)
+        if figure is not None:
+            self.client.log_figure(run_id, figure, FIGURE)
 
     @staticmethod
     def _step_metrics(summary: Mapping, now: int) -> list:
@@ -163,7 +200,7 @@ class SweepTracker:
             scale = step_scale([float(v) for v in by_step])
             for value, values in by_step.items():
                 step = int(round(float(value) * scale))
-                metrics += [Metric(schema.series_name(name, step_key), float(values[name]), now, step)
+                metrics += [Metric(mlflow_name(schema.series_name(name, step_key)), float(values[name]), now, step)
                             for name in schema.ordered(values) if _finite(values[name])]
         return metrics
 
@@ -175,13 +212,16 @@ class SweepTracker:
 
     def end(self, outcome, artifacts: list[Path] = ()) -> None:
         """Log the sweep's totals and files on the parent run and close it."""
-        from mlflow.entities import Metric
+        from mlflow.entities import Metric, RunTag
 
         now = int(time.time() * 1000)
+        record = self.output_dir / RUN_RECORD  # written by the sweep; its cluster (serial, or Ray's) becomes tags
+        tags = cluster_tags(json.loads(record.read_text())) if record.exists() else {}
         totals = {"cells": len(outcome.summaries), "cache_hits": outcome.stats.cache_hits,
                   "cache_misses": outcome.stats.cache_misses, "wall_time_s": outcome.seconds,
                   "resumed_cells": outcome.resumed}
-        self.client.log_batch(self.parent_id, metrics=[Metric(k, float(v), now, 0) for k, v in totals.items()])
+        self.client.log_batch(self.parent_id, metrics=[Metric(SWEEP + k, float(v), now, 0) for k, v in totals.items()],
+                              tags=[RunTag(k, v) for k, v in tags.items()])
         if outcome.table is not None and Path(outcome.table).exists():
             self.client.log_artifact(self.parent_id, str(outcome.table))
         for path in artifacts:  # the report: survey tables and plots
@@ -191,11 +231,10 @@ class SweepTracker:
 
     def ui_hint(self) -> str:
         """How to look at the runs: the ``mlflow ui`` command for the store actually used, or its address."""
-        page = f"#/experiments/{self.experiment_id}/runs?workflowType=machine_learning"  # the training-runs view
         if self.uri.startswith(("http://", "https://")):
-            return f"MLflow: parent run {self.parent_id}, open {self.uri.rstrip('/')}/{page}"
+            return f"MLflow: parent run {self.parent_id}, open {runs_url(self.uri, self.experiment_id)}"
         return (f"MLflow: parent run {self.parent_id}; to browse: mlflow ui --backend-store-uri {self.uri} "
-                f"--host 127.0.0.1 --port 5000, then open http://127.0.0.1:5000/{page}")
+                f"--host 127.0.0.1 --port 5000, then open {runs_url('http://127.0.0.1:5000', self.experiment_id)}")
 
 
 def _finite(value) -> bool:
@@ -225,16 +264,18 @@ def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[di
     summaries = []
     for run in runs:
         params, tags = run.data.params, run.data.tags
-        methods = {k: params.get(k) for k in ("detector", "selector", "descriptor", "transform")}
-        methods.update({k: params[k] for k in ("matcher", "estimator") if k in params})
-        series = {name: schema.parse_series(name) for name in run.data.metrics}
+        names = {**params, **{k[len(METHOD_TAG):]: v for k, v in tags.items() if k.startswith(METHOD_TAG)}}
+        methods = {k: names.get(k) for k in ("detector", "selector", "descriptor", "transform")}
+        methods.update({k: names[k] for k in ("matcher", "estimator") if k in names})
+        keys = {summary_name(k): k for k in run.data.metrics}  # runs logged with or without metric prefixes
+        series = {name: schema.parse_series(name) for name in keys}
         summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
                    "reason": tags.get(REASON_TAG), "experiment": experiment,
-                   "metrics": {k: run.data.metrics[k] for k in schema.ordered(run.data.metrics) if not series[k]}}
+                   "metrics": {k: run.data.metrics[keys[k]] for k in schema.ordered(keys) if not series[k]}}
         if tags.get(VIEWS_TAG):
             summary["n_views"] = int(tags[VIEWS_TAG])
         for name, (metric, step_key) in ((k, v) for k, v in series.items() if v):
-            history = client.get_metric_history(run.info.run_id, name)
+            history = client.get_metric_history(run.info.run_id, keys[name])
             scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
             scale = float(tags.get(f"gtsweep.step_scale.{step_key}", scale))
             steps = summary.setdefault(f"by_{step_key}", {})
@@ -278,9 +319,10 @@ def views_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         for run in runs:
             key = run.data.tags.get(CELL_TAG)
-            if not key or not any(a.path == f"{key}.csv" for a in client.list_artifacts(run.info.run_id)):
-                continue
-            views[key] = pd.read_csv(client.download_artifacts(run.info.run_id, f"{key}.csv", tmp))
+            logged = {a.path for a in client.list_artifacts(run.info.run_id)} if key else set()
+            name = next((n for n in (VIEWS_FILE, f"{key}.csv") if n in logged), None)  # older runs: <cell>.csv
+            if name is not None:
+                views[key] = pd.read_csv(client.download_artifacts(run.info.run_id, name, tmp))
     return views
 
 
@@ -294,7 +336,7 @@ def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str
     model_development(client, experiment)
     tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.role": "multirun",
             "gtsweep.output_dir": str(sweep_dir), **source_tags()}
-    return client.create_run(experiment, run_name=name, tags=tags).info.run_id
+    return client.create_run(experiment, run_name=unique_name(client, experiment, name), tags=tags).info.run_id
 
 
 def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = ()) -> None:

@@ -1,9 +1,10 @@
 """What MLflow's UI reads from tags: the experiment's kind (its model-training view rather than the GenAI one),
-each run's source, user and git commit, and short run names that fit the runs table's name column."""
+each run's source, user and git commit, and short run names, unique within the experiment, that fit the runs
+table's name column."""
 from __future__ import annotations
 
 import getpass
-from typing import Iterable
+from typing import Iterable, Mapping
 
 KIND_TAG = "mlflow.experimentKind"
 MODEL_DEVELOPMENT = "custom_model_development"
@@ -12,6 +13,7 @@ SOURCE_NAME = "python -m gtsweep"
 TRANSFORM_SHORT = {"incremental": "inc", "absolute": "abs", "rotation": "rot", "translation": "trans",
                    "noise": "noise", "gamma": "gamma"}
 SEPARATOR = "·"
+CLUSTER_TAG = "gtsweep.cluster."
 MAX_NAME = 40
 #: Overrides that say how a sweep ran rather than what it evaluated: left out of run names when others remain.
 PLUMBING = ("hydra.", "++hydra", "resume=", "dataset.", "runner.", "mlflow.", "cache.", "report.")
@@ -87,6 +89,35 @@ def overrides_name(overrides: Iterable[str], fallback: str) -> str:
     overrides = [o for o in overrides if not o.startswith(PLUMBING[:3])]
     name = " ".join(o for o in overrides if not o.lstrip("+").startswith(PLUMBING)) or " ".join(overrides) or fallback
     return name if len(name) <= MAX_NAME else name[:MAX_NAME - 1] + "…"
+
+
+def unique_name(client, experiment_id: str, name: str) -> str:
+    """``name``, else ``name (2)``, ``name (3)``, ...: the first that no run of the experiment has (MLflow does not
+    keep run names unique; a sweep's cell runs are named after their parent, so theirs are unique too)."""
+    from mlflow.exceptions import MlflowException
+
+    pattern = name.replace("'", "_")  # a quote would end the filter's string; _ matches any one character
+    try:
+        runs = client.search_runs([experiment_id], f"attributes.run_name LIKE '{pattern}%'", max_results=50000)
+    except MlflowException:  # a name the filter parser refuses: kept as it is
+        return name
+    taken = {run.info.run_name for run in runs}
+    number = 1
+    while (candidate := name if number == 1 else f"{name} ({number})") in taken:
+        number += 1
+    return candidate
+
+
+def child_name(cell_name: str, parent_name: str) -> str:
+    """A cell run's name: the cell (``sift·brief·inc``), then its sweep's run (``seed=1``)."""
+    return f"{cell_name} {SEPARATOR} {parent_name}" if parent_name else cell_name
+
+
+def cluster_tags(run_record: Mapping) -> dict[str, str]:
+    """Where a sweep's tasks ran, from its ``run.json`` (``"cluster"``: ``backend``, and for Ray its ``address``,
+    ``nodes``, ``cpus``), as the tags ``gtsweep.cluster.<key>``; none when the record has no cluster."""
+    cluster = run_record.get("cluster") or {}
+    return {CLUSTER_TAG + str(k): str(v) for k, v in cluster.items()} if isinstance(cluster, Mapping) else {}
 
 
 def ms(seconds: float | None) -> int | None:

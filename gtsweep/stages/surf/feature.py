@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput
-from gtsweep.stages.keypoints import ANGLE, COLUMNS, SIZE, X, Y, to_keypoints
+from gtsweep.stages.keypoints import ANGLE, COLUMNS, SIZE, X, Y, to_array, to_keypoints
 from gtsweep.stages.surf.describe import (
     UPRIGHT_ANGLE,
     descriptors_from_patches,
@@ -45,14 +45,6 @@ def _check_mask(mask, shape):
     if mask.dtype != np.uint8 or mask.shape != shape:
         raise BadInput(f"SURF mask must be uint8 of shape {shape}, got {mask.dtype} {mask.shape}")
     return mask
-
-
-def _keypoint_array(keypoints) -> np.ndarray:
-    """Foreign ``cv2.KeyPoint``s as an ``(N, 7)`` array with float32-exact positions and sizes."""
-    if len(keypoints) == 0:
-        return np.zeros((0, len(COLUMNS)))
-    return np.array([(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave, k.class_id) for k in keypoints],
-                    dtype=np.float64)
 
 
 class NumpySURF:
@@ -141,7 +133,7 @@ class NumpySURF:
         Like OpenCV's, the orientation is recomputed (270 when upright) and keypoints that cannot be described
         (size <= 0, too large for the image, or no orientation sample inside the image) are dropped.
         """
-        return self._run(image, None, _keypoint_array(keypoints), describe=True)
+        return self._run(image, None, to_array(keypoints), describe=True)
 
     def detectAndCompute(self, image, mask, descriptors=None, useProvidedKeypoints=False, *, keypoints=None):
         """``(keypoints, descriptors)``; with ``useProvidedKeypoints`` the ``keypoints`` given are described.
@@ -149,7 +141,7 @@ class NumpySURF:
         (OpenCV's Python binding cannot pass keypoints in, so there ``useProvidedKeypoints=True`` describes none;
         the keyword ``keypoints`` is this class's extension.)
         """
-        provided = _keypoint_array(keypoints if keypoints is not None else ()) if useProvidedKeypoints else None
+        provided = to_array(keypoints if keypoints is not None else ()) if useProvidedKeypoints else None
         return self._run(image, mask, provided, describe=True)
 
     # The same on plain arrays: keypoints as (N, 7) float64 rows with the columns of gtsweep.stages.keypoints.

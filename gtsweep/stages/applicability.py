@@ -33,10 +33,11 @@ def applicability(detector: str, descriptor: str) -> str | None:
     return None
 
 
-def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str, **params):
+def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
+                   foreign_scale: str | None = None, **params):
     """:func:`gtsweep.stages.describe.describe_timed` for one pairing: :class:`NotApplicable` first when the
     survey's rule says the pairing cannot be evaluated."""
     reason = applicability(detector, name)
     if reason is not None:
         raise NotApplicable(reason)
-    return describe.describe_timed(image, keypoints, name, detector, **params)
+    return describe.describe_timed(image, keypoints, name, detector, foreign_scale, **params)

@@ -16,8 +16,8 @@ from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.seeds import stable_seed
 from gtsweep.optimize.objective import evaluate
 from gtsweep.optimize.search_space import defaults_in_space
-from gtsweep.optimize.settings import job_transforms
 from gtsweep.optimize.stopping import settled
+from gtsweep.optimize.study_settings import job_transforms
 from gtsweep.optimize.targets import Target
 
 

@@ -1,4 +1,5 @@
-"""``cfg.experiment`` of ``experiment=optimize``, checked, and the transforms a trial evaluates."""
+"""``cfg.experiment`` of ``experiment=optimize``, checked, and the transforms a trial evaluates; the pose objective's
+matcher and estimator parameters come from the matcher and estimator groups, as in a sweep."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -48,7 +49,23 @@ def read_settings(cfg: Mapping) -> dict:
             raise BadInput(f"experiment.transforms.{name}: unknown transform; choices: {', '.join(TRANSFORMS)}")
         ListOf(TRANSFORMS.get(name).strength).check(f"experiment.transforms.{name}.strengths", strengths)
     s["storage"] = s.get("storage") or f"sqlite:///{(Path.cwd() / DEFAULT_CACHE_DIR / 'optuna.db').resolve()}"
-    return s
+    return {**s, **survey_method_settings(cfg, s.get("pose") or {})}
+
+
+def survey_method_settings(cfg: Mapping, judging: Mapping) -> dict:
+    """The pose objective's matcher and estimator, the survey's (``bf_ratio``, ``ransac``), with the parameters of
+    the matcher and estimator groups (``matcher.bf_ratio.params.ratio=0.8``), as the sweep takes them: ``ratio``,
+    ``mutual`` and ``pose`` (model, iterations, threshold, and ``judging``'s success thresholds)."""
+    from gtsweep.stages.match import MATCHERS
+    from gtsweep.stages.pose import ESTIMATORS
+
+    def params(group: str, name: str, registry) -> dict:
+        node = (plain(cfg.get(group)) or {}).get(name) or {}
+        return registry.get(name).params(node.get("params"))
+
+    matcher, estimator = params("matcher", "bf_ratio", MATCHERS), params("estimator", "ransac", ESTIMATORS)
+    pose = {k: estimator[k] for k in ("model", "iterations", "threshold")}
+    return {"ratio": matcher["ratio"], "mutual": matcher["mutual"], "pose": {**pose, **judging}}
 
 
 def job_transforms(settings: Mapping) -> dict:

@@ -1,6 +1,9 @@
-"""One sweep from a composed config: build the grid, load the data set, skip finished cells, run, write results.
+"""The one sweep skeleton every kind of sweep runs on: build the grid, check the services, load the data, keep the
+cells an earlier run finished (resume), evaluate the others, write the results and the run record.
 
-This is the driver. It alone writes result files (and, through ``hooks``, to MLflow); workers return plain rows.
+A kind of sweep gives its grid, its data and its evaluation as a :class:`CellWork` (:data:`PAIRS` for the pair
+experiments, :data:`gtsweep.orchestration.localization.LOCALIZATION`). The skeleton alone writes result files
+(and, through ``hooks``, to MLflow); workers return plain rows.
 """
 from __future__ import annotations
 
@@ -58,36 +61,50 @@ def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) 
     return {**summary, "status": "error", "reason": outcome["error"]}
 
 
+@dataclass(frozen=True)
+class CellWork:
+    """What one kind of sweep gives the skeleton (:func:`run_sweep`): its grid (cells with ``key``, ``methods``,
+    ``na_reason``; ``cell_hash``; ``experiment``), its data and how its pending cells are evaluated.
+
+    ``load_data(cfg, grid)`` returns the data with ``name``, ``fingerprint`` and ``skipped`` (bad items skipped);
+    ``evaluate(grid, data, cells, runner_cfg, seed, cache_dir, finish, on_started)`` reads (and so checks) its inputs,
+    calls ``on_started()`` once the executor is up, ``finish(cell, outcome)`` for every cell, and returns its
+    :class:`RunStats`."""
+
+    build_grid: Callable[[Mapping], object]
+    load_data: Callable[[Mapping, object], object]
+    evaluate: Callable[..., RunStats]
+
+
 def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
               on_start: Callable[[Grid, str], None] | None = None, progress: Progress | None = None,
-              on_checked: Callable[[], None] | None = None) -> SweepOutcome:
+              on_checked: Callable[[], None] | None = None, work: CellWork | None = None) -> SweepOutcome:
     """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete (same config) are kept, failed
-    ones recomputed. ``progress`` shows the phases and counts the cells (none: the job's log only);
-    ``on_checked`` runs once the settings and the Ray address are checked, before any work."""
+    ones recomputed. ``work``: the kind of sweep (None: the pair experiments, :data:`PAIRS`); ``progress`` shows
+    the phases and counts the cells (none: the job's log only); ``on_checked`` runs once the settings and the Ray
+    address are checked, before any work."""
     start = time.perf_counter()
+    work = work or PAIRS
     progress = progress or Progress(enabled=False)
-    grid = build_grid(cfg)
+    grid = work.build_grid(cfg)
     runner_cfg = plain(cfg.get("runner")) or {}
-    log.info("grid: %d cells (%s experiment), %d detector(s), %d selector(s), %d descriptor(s), %d transform(s)",
-             len(grid.cells), grid.experiment["name"], len(grid.detectors), len(grid.selectors),
-             len(grid.descriptors), len(grid.transforms))
+    log.info("grid: %d cells (%s experiment)", len(grid.cells), grid.experiment["name"])
     if backend(runner_cfg) == "ray":
         check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
     if on_checked is not None:
         on_checked()
     cache_dir, cache_note = cache_state(cfg)
     progress.phase("render data set")
-    dataset = load_dataset(cfg["dataset"])
-    fingerprint = dataset.fingerprint()
-    log.info("data set '%s', fingerprint %s", dataset.name, fingerprint)
+    data = work.load_data(cfg, grid)
+    log.info("data set '%s', fingerprint %s", data.name, data.fingerprint)
     seed = int(cfg.get("seed", 0))
     store = ResultStore(output_dir)
     if on_start is not None:
-        on_start(grid, fingerprint)
+        on_start(grid, data.fingerprint)
     summaries: dict[str, dict] = {}
-    hashes = {cell.key: grid.cell_hash(cell, fingerprint, seed) for cell in grid.cells}
+    hashes = {cell.key: grid.cell_hash(cell, data.fingerprint, seed) for cell in grid.cells}
 
-    def finish(cell: Cell, outcome: Mapping) -> None:
+    def finish(cell, outcome: Mapping) -> None:
         summary = cell_summary(cell, hashes[cell.key], outcome, grid.experiment["name"])
         rows = outcome.get("rows")
         store.write_cell(cell.key, summary, rows)
@@ -98,7 +115,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         for hook in hooks:
             hook(cell, summary, rows)
 
-    pending, not_applicable, resumed = set(), [], 0
+    pending, not_applicable, resumed = [], [], 0
     for cell in grid.cells:
         done = store.complete(cell.key, hashes[cell.key])
         if done is not None:
@@ -108,9 +125,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         elif cell.na_reason is not None:
             not_applicable.append(cell)
         else:
-            pending.add(cell.key)
-    # Load (and so check) every image before the first result file is written: bad data stops the run clean.
-    shards = load_shards(dataset, grid.transforms, int(runner_cfg.get("shard_size", 4))) if pending else {}
+            pending.append(cell)
     log.info("%d cell(s) to evaluate, %d kept from an earlier run, %d not applicable", len(pending), resumed,
              len(not_applicable))
 
@@ -121,10 +136,9 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
 
     stats = RunStats()
     if pending:
-        jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, pending)
         if backend(runner_cfg) == "ray":
             progress.phase("start Ray")
-        stats = run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish, on_started=start_evaluating)
+        stats = work.evaluate(grid, data, pending, runner_cfg, seed, cache_dir, finish, start_evaluating)
     else:
         start_evaluating()
     if stats.cache_write_errors:
@@ -134,17 +148,52 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         print(f"gtsweep: warning: {stats.cache_write_errors} task(s) could not write to the keypoint cache "
               f"{cache_dir}; they ran without it", file=sys.stderr)
     ordered = [summaries[cell.key] for cell in grid.cells]
-    outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, fingerprint,
+    outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, data.fingerprint,
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
-                           skipped_items=list(getattr(dataset, "skipped", [])), cache=cache_note)
+                           skipped_items=list(getattr(data, "skipped", ())), cache=cache_note)
     outcome.table = store.write_table(ordered)
-    _write_run_record(outcome, dataset)
+    write_run_record(outcome, data)
     return outcome
 
 
-def _write_run_record(outcome: SweepOutcome, dataset) -> None:
+@dataclass(frozen=True)
+class PairData:
+    """A data set of images and pairs (:func:`gtsweep.datasets.load_dataset`) as the skeleton reads it."""
+
+    dataset: object
+    fingerprint: str
+
+    @property
+    def name(self) -> str:
+        return self.dataset.name
+
+    @property
+    def skipped(self) -> list[str]:
+        return list(getattr(self.dataset, "skipped", []))
+
+
+def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
+    dataset = load_dataset(cfg["dataset"])
+    return PairData(dataset, dataset.fingerprint())
+
+
+def _evaluate_pairs(grid: Grid, data: PairData, cells: list, runner_cfg: dict, seed: int, cache_dir, finish,
+                    on_started) -> RunStats:
+    # Load (and so check) every image before the first result file is written: bad data stops the run clean.
+    shards = load_shards(data.dataset, grid.transforms, int(runner_cfg.get("shard_size", 4)))
+    jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, {cell.key for cell in cells})
+    return run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish, on_started=on_started)
+
+
+#: The pair experiments (detection, matching, pose): detector x selector (x descriptor x matcher x estimator) x
+#: transform on images and image pairs.
+PAIRS = CellWork(build_grid, _load_pairs, _evaluate_pairs)
+
+
+def write_run_record(outcome: SweepOutcome, data) -> None:
+    """``run.json``: the data set, cache and task counts, wall time."""
     record = {
-        "dataset": dataset.name,
+        "dataset": data.name,
         "dataset_fingerprint": outcome.dataset_fingerprint,
         "skipped_items": outcome.skipped_items,
         "cells": len(outcome.summaries),

@@ -1,0 +1,145 @@
+"""Config files as Hydra finds them on a search path: the options of a group and raw files, first match wins.
+
+Hydra's ``--help`` lists the groups of its main directory only, not those of ``hydra.searchpath`` entries declared
+in a primary config; the resolver ``${gtsweep.groups:}`` (:func:`register_help_resolver`) lists what a running job
+really composes from, for a help template.
+
+The working directory's ``./tuned`` is on the search path as ``tuned://tuned`` (:class:`TunedMethods`): it supplies
+tuned method files only, ``<group>/tuned/<name>.yaml`` of a method group, never a preset or any other config.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+
+from hydra.core.object_type import ObjectType
+from hydra.core.plugins import Plugins
+from hydra.plugins.config_source import ConfigLoadError, ConfigResult, ConfigSource
+
+#: The config groups that hold methods (a grid dimension each); only these have tuned files.
+METHOD_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+
+
+class TunedMethods(ConfigSource):
+    """A directory (``tuned://DIR``) of which Hydra sees only ``<method group>/tuned/<name>.yaml``: what
+    ``experiment=optimize`` writes. A preset (``sweeps/...``) or a group's own option planted there does not exist
+    for Hydra."""
+
+    @staticmethod
+    def scheme() -> str:
+        return "tuned"
+
+    def _served(self, config_path: str, config: bool) -> bool:
+        parts = [p for p in config_path.strip("/").split("/") if p]
+        if not parts:
+            return not config
+        if parts[0] not in METHOD_GROUPS:
+            return False
+        return len(parts) == 3 and parts[1] == "tuned" if config else len(parts) <= 2 and parts[1:] in ([], ["tuned"])
+
+    def _file(self, config_path: str) -> str:
+        return os.path.realpath(os.path.join(self.path, self._normalize_file_name(config_path)))
+
+    def load_config(self, config_path: str) -> ConfigResult:
+        from omegaconf import OmegaConf
+
+        if not self.is_config(config_path):
+            raise ConfigLoadError(f"Config not found : {config_path} in {self.full_path()}")
+        with open(self._file(config_path), encoding="utf-8") as f:
+            header = ConfigSource._get_header_dict(f.read(512))
+            f.seek(0)
+            return ConfigResult(config=OmegaConf.load(f), path=self.full_path(), provider=self.provider,
+                                header=header)
+
+    def available(self) -> bool:
+        return os.path.isdir(self.path)
+
+    def is_group(self, config_path: str) -> bool:
+        return self._served(config_path, config=False) and os.path.isdir(os.path.join(self.path, config_path))
+
+    def is_config(self, config_path: str) -> bool:
+        return self._served(config_path.removesuffix(".yaml"), config=True) and os.path.isfile(
+            self._file(config_path))
+
+    def list(self, config_path: str, results_filter: ObjectType | None) -> list[str]:
+        found: list[str] = []
+        if self.is_group(config_path):
+            for name in os.listdir(os.path.join(self.path, config_path)):
+                self._list_add_result(found, os.path.join(config_path, name), name, results_filter)
+        return sorted(set(found))
+
+
+def register_sources() -> None:
+    """Make the ``tuned://`` scheme known to Hydra in this process (the CLI's and every launcher worker's)."""
+    Plugins.instance().register(TunedMethods)
+
+
+class Configs:
+    """The config files on a search path (``file://dir``, ``pkg://package``, ``tuned://dir`` entries, in order)."""
+
+    def __init__(self, entries):
+        register_sources()
+        kinds = {kind.scheme(): kind for kind in Plugins.instance().discover(ConfigSource)}
+        self.entries = tuple(entries)
+        self.sources = [kinds[entry.split("://")[0]]("gtsweep", entry) for entry in self.entries]
+
+    def _listing(self, path: str, kind: ObjectType) -> set[str]:
+        return {name for source in self.sources if source.available() and source.is_group(path)
+                for name in source.list(path, kind)}
+
+    def options(self, group: str) -> list[str]:
+        """The options of a config group (``detector``; ``detector/tuned``), from every directory searched."""
+        return sorted(self._listing(group, ObjectType.CONFIG))
+
+    def groups(self, parent: str = "") -> list[str]:
+        """Every config group under ``parent`` that has options, e.g. ``detector`` and ``detector/tuned``."""
+        found = []
+        for name in sorted(self._listing(parent, ObjectType.GROUP)):
+            group = f"{parent}/{name}" if parent else name
+            if name != "__pycache__":
+                found += ([group] if self.options(group) else []) + self.groups(group)
+        return found
+
+    def source(self, config: str):
+        """The first file ``config`` (``detector/sift``) on the path, as Hydra's ``ConfigResult`` (None if none)."""
+        for source in self.sources:
+            if source.available() and source.is_config(config):
+                return source.load_config(config)
+        return None
+
+    def load(self, config: str) -> dict:
+        """The raw content of ``config`` as plain data (its ``defaults`` list included); {} when missing."""
+        from omegaconf import OmegaConf
+
+        result = self.source(config)
+        return (OmegaConf.to_container(result.config) or {}) if result is not None else {}
+
+
+def configs_of_sources(sources) -> Configs:
+    """The configs of a running job, from ``HydraConfig.get().runtime.config_sources``."""
+    return Configs([f"{s['schema']}://{s['path']}" for s in sources if s["schema"] != "structured"])
+
+
+def group_listing(configs: Configs, only=()) -> str:
+    """``group: option, option`` per line (the groups ``only`` and their subgroups; Hydra's own left out)."""
+    return "\n".join(f"{group}: {', '.join(configs.options(group))}" for group in sorted(configs.groups())
+                     if group.split("/")[0] != "hydra" and (not only or group.split("/")[0] in only))
+
+
+def _job_groups(*only: str) -> str:
+    from hydra.core.hydra_config import HydraConfig
+
+    return group_listing(configs_of_sources(HydraConfig.get().runtime.config_sources), only)
+
+
+def register_help_resolver() -> None:
+    """``${gtsweep.groups:}`` (``${gtsweep.groups:dataset}``: that group only): the config groups of the running
+    job and their options, for a help template."""
+    from omegaconf import OmegaConf
+
+    OmegaConf.register_new_resolver("gtsweep.groups", _job_groups, replace=True)
+
+
+def ignore_missing_dir(path: str) -> None:
+    """Hydra warns for every search path entry that does not exist; ``path`` (e.g. ./tuned) may well not."""
+    warnings.filterwarnings("ignore", message=rf"provider=.*, path={path} is not available", category=UserWarning)

@@ -1,0 +1,81 @@
+"""Where MLflow's UI should open on a sweep: the model-training view, with a saved view for comparing pairings.
+
+MLflow 3.17's UI picks its GenAI or its model-training layout from the URL (``workflowType=machine_learning``) or
+from the browser's last choice (GenAI at first), whatever the experiment's ``mlflow.experimentKind`` tag says; so
+every address gtsweep prints carries ``workflowType=machine_learning``.
+
+A saved view of the runs page is an experiment tag ``mlflow.sharedViewState.<key>`` holding
+``{"name", "createdAt", "updatedAt", "state"}``, ``state`` being the page's search and table settings as JSON
+(what the UI's "Views" menu saves; ``viewStateShareKey=<key>`` in the address opens it). gtsweep saves one,
+"gtsweep: pairings": the cell runs only, grouped by pairing (detector, selector, descriptor, matcher, estimator,
+transform and data set: each group averages its runs over the seeds), with the method, seed and data-set columns
+and the headline metrics; its charts start with the headline metrics (:data:`~gtsweep.tracking.metricnames.SECTIONS`).
+"""
+from __future__ import annotations
+
+import json
+import time
+
+from gtsweep.evaluation import schema
+from gtsweep.tracking.metricnames import SECTIONS
+
+VIEW_KEY = "gtsweep-pairings"
+VIEW_NAME = "gtsweep: pairings"
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+TRAINING_VIEW = "workflowType=machine_learning"
+#: The params a pairing is grouped by, and the columns shown (with the seed).
+PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset")
+#: The headline metric of each experiment, and precision (the survey's other main number), as columns.
+HEADLINE_METRICS = tuple(dict.fromkeys([*(schema.HEADLINE[e] for e in schema.EXPERIMENT_ROWS), "precision"]))
+
+
+def _column(kind: str, name: str) -> str:
+    return f"{kind}.`{name}`"
+
+
+def pairings_state(cell_tag: str) -> dict:
+    """The runs page's settings of the saved view; ``cell_tag`` is the tag every cell run has."""
+    return {
+        "searchFilter": f"tags.`{cell_tag}` LIKE '%'",
+        "orderByKey": "attributes.start_time",
+        "orderByAsc": False,
+        "selectedColumns": [*(_column("params", p) for p in (*PAIRING, "seed")),
+                            *(_column("metrics", m) for m in HEADLINE_METRICS)],
+        "groupBy": {"aggregateFunction": "average",
+                    "groupByKeys": [{"mode": "param", "groupByData": p} for p in PAIRING]},
+        "runsHiddenMode": "SHOW_ALL",
+        # the chart view: MLflow's generated charts, in sections ordered headline first (kept as given when
+        # isAccordionReordered; MLflow would sort the prefixed sections before its "Model metrics")
+        "compareRunCharts": [],
+        "compareRunSections": [{"uuid": f"gtsweep-section-{index}", "name": name, "display": True,
+                                "isReordered": False} for index, name in enumerate(SECTIONS)],
+        "isAccordionReordered": True,
+    }
+
+
+def save_pairings_view(client, experiment_id: str, cell_tag: str) -> None:
+    """Create (or bring up to date) the experiment's "gtsweep: pairings" view; a user's own views stay as they are."""
+    state = json.dumps(pairings_state(cell_tag), sort_keys=True)
+    tag = VIEW_TAG_PREFIX + VIEW_KEY
+    old = (client.get_experiment(experiment_id).tags or {}).get(tag)
+    try:
+        envelope = json.loads(old) if old else {}
+    except ValueError:
+        envelope = {}
+    if envelope.get("state") == state:
+        return
+    now = int(time.time() * 1000)
+    envelope = {"name": VIEW_NAME, "createdAt": envelope.get("createdAt", now), "updatedAt": now, "state": state}
+    client.set_experiment_tag(experiment_id, tag, json.dumps(envelope))
+
+
+def runs_url(base: str, experiment_id: str, saved_view: bool = True) -> str:
+    """The experiment's runs in the model-training view (with the pairings view unless ``saved_view`` is False)."""
+    query = TRAINING_VIEW + (f"&viewStateShareKey={VIEW_KEY}" if saved_view else "")
+    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs?{query}"
+
+
+def run_url(base: str, experiment_id: str, run_id: str, tab: str = "") -> str:
+    """One run's page (``tab``: ``model-metrics``, ``artifacts``, ...) in the model-training view."""
+    path = f"#/experiments/{experiment_id}/runs/{run_id}" + (f"/{tab}" if tab else "")
+    return f"{base.rstrip('/')}/{path}?{TRAINING_VIEW}"
