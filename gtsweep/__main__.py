@@ -1,3 +1,13 @@
-from gtsweep.cli import main
+"""``python -m gtsweep`` and the ``gtsweep`` console script: Ctrl-C is quiet from the first line on."""
+from gtsweep.core.interrupts import quiet_until_handled
 
-main()
+
+def run() -> None:
+    quiet_until_handled()  # Ctrl-C while Python imports gtsweep: one line, no traceback
+    from gtsweep.cli import main
+
+    main()
+
+
+if __name__ == "__main__":
+    run()

@@ -68,7 +68,7 @@ def test_the_build_warns_nothing_and_ships_the_licences_and_the_command(built):
     assert {f"gtsweep-0.1.0.dist-info/licenses/{name}" for name in LICENCES} <= names
     assert {"gtsweep/models/LICENSE-xfeat", "gtsweep/models/NOTICE-xfeat", "gtsweep/models/xfeat.onnx"} <= names
     assert "Apache License" in licence and "Version 2.0, January 2004" in licence
-    assert "[console_scripts]\ngtsweep = gtsweep.cli:main" in entry_points
+    assert "[console_scripts]\ngtsweep = gtsweep.__main__:run" in entry_points
     assert {"gtsweep/conf/detector/tuned/sift.yaml", "gtsweep/conf/sweeps/smoke.yaml"} <= names
 
 

@@ -294,7 +294,7 @@ def test_a_bad_value_in_the_first_csv_row_is_a_bad_value(tmp_path):
     cells = lines[1].split(",")
     cells[1] = "12x"  # no header: the first row is data with one bad value
     file.write_text("\n".join([",".join(cells), *lines[2:]]) + "\n")
-    with pytest.raises(BadInput, match=f"{file}:1: x, y, theta, scale must be numbers"):
+    with pytest.raises(BadInput, match=f"{file}:1: x, y, theta, scale must be finite numbers"):
         load_dataset({"loader": "csv", "root": str(file)})
     file.write_text("\n".join(["image,x,y,angle", *lines[1:]]) + "\n")  # a real header with a typo
     with pytest.raises(BadInput, match=f"{file}:1: header must start with image,x,y,theta"):

@@ -17,7 +17,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from gtsweep.cli.lifecycle import (
     claim,
+    exit_failed,
     exit_interrupted,
+    failure_cause,
     interruptible,
     interruption,
     register_resolvers,
@@ -74,9 +76,10 @@ def _job(experiment: Experiment, cfg: DictConfig, output_dir: Path) -> None:
         stop_workers()
         fail(e)
     except (Interrupted, Exception) as e:
-        if (signal := interruption(e)) is None:
-            raise
+        signal = interruption(e)
         stop_workers()
+        if signal is None:
+            exit_failed(e, "finished trials are kept in the study")
         exit_interrupted(signal, "finished trials are kept in the study")
 
 
@@ -108,15 +111,16 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
         if tracker is not None:
             tracker.abort(str(e))
         fail(e)
-    except (Interrupted, Exception) as e:
-        if (signal := interruption(e)) is None:
-            raise
+    except (Interrupted, Exception) as e:  # Ctrl-C, or a failure anywhere (disk, store, cluster): one line
+        signal = interruption(e)
         progress.close()
         stop_workers()
-        if tracker is not None:
-            tracker.abort(str(signal), status="KILLED")
-        kept = len(list((output_dir / "cells").glob("*.json")))
-        exit_interrupted(signal, f"{kept} finished cell(s) kept in {output_dir}")
+        marked = tracker.abort(str(signal) if signal else failure_cause(e), "KILLED" if signal else "FAILED") \
+            if tracker is not None else ""
+        kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
+        if signal is None:
+            exit_failed(e, kept, marked)
+        exit_interrupted(signal, kept)
     progress.close()
     summary = [experiment.summary(outcome, tables), scale.line(),
                f"report: {len(files)} tables and plots in {output_dir / 'report'}"]

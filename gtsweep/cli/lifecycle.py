@@ -9,16 +9,17 @@
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import shlex
 import signal
 import sys
 import tempfile
 import threading
+import traceback
 from pathlib import Path
 from typing import Iterator
 
+from filelock import FileLock, Timeout
 from omegaconf import OmegaConf
 
 from gtsweep.core import interrupts
@@ -79,14 +80,13 @@ def claim(output_dir: Path) -> None:
     key = str(output_dir.resolve())
     if key in _held:
         return
-    handle = open(output_dir / LOCK_FILE, "a")
+    lock = FileLock(output_dir / LOCK_FILE, timeout=0)
     try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        handle.close()
+        lock.acquire()
+    except Timeout:
         raise BadInput(f"another gtsweep run is writing to {output_dir}; wait for it or choose another "
                        f"hydra.run.dir") from None
-    _held[key] = handle
+    _held[key] = lock
 
 
 @contextlib.contextmanager
@@ -135,6 +135,38 @@ def resume_command() -> str:
     else:  # called from Python (tests, scripts): the arguments Hydra got
         args = [a for a in sys.argv[1:] if not a.startswith("hydra.searchpath=")]
     return shlex.join(["python", "-m", "gtsweep", *[a for a in args if not a.startswith("resume=")], "resume=true"])
+
+
+#: Exit code of a run that stopped on a failure of its environment (disk, store, cluster) or a bug: not bad input (2).
+EXIT_FAILED = 1
+
+
+def failure_cause(error: BaseException) -> str:
+    """Why a run stopped, in one line: a file error with its file (``No space left on device: cells/x.csv``), a
+    locked or broken MLflow store, a lost Ray cluster, else the exception's type, message and where it was raised."""
+    if isinstance(error, OSError) and error.strerror:
+        where = f": {error.filename}" if error.filename else ""
+        return f"{error.strerror}{where}"
+    message = " ".join((str(error).strip().splitlines() or [""])[0].split())
+    kind = type(error).__name__
+    module = type(error).__module__ or ""
+    if "database is locked" in str(error):
+        return "the MLflow store is locked by another process (database is locked)"
+    if module.startswith("ray"):
+        return f"the Ray cluster was lost ({kind}: {message})"
+    if module.startswith(("mlflow", "sqlalchemy")):
+        return f"the MLflow store failed ({kind}: {message})"
+    frames = traceback.extract_tb(error.__traceback__)
+    where = f" (at {frames[-1].filename}:{frames[-1].lineno})" if frames else ""
+    return f"{kind}: {message}{where}"
+
+
+def exit_failed(error: BaseException, kept: str, marked: str = "") -> None:
+    """One line on stderr (the cause, what is kept, how to continue), exit code :data:`EXIT_FAILED`; ``marked``
+    says what became of the MLflow run when it could not be marked FAILED."""
+    print(f"gtsweep: error: {failure_cause(error)}; {kept}{marked}; to continue: {resume_command()}",
+          file=sys.stderr)
+    sys.exit(EXIT_FAILED)
 
 
 def exit_interrupted(error: Interrupted, kept: str) -> None:

@@ -31,6 +31,15 @@ def write_atomically(path: str | os.PathLike, content: str | Callable[[IO[bytes]
     the same directory and ``os.replace``; the file gets the mode the umask gives; a failure leaves no temporary
     file behind."""
     path = Path(path)
+    try:
+        _write(path, content)
+    except OSError as e:  # a full disk or a write error says which file (``write`` itself names none)
+        if e.filename is None and e.errno is not None:
+            raise OSError(e.errno, e.strerror, str(path)) from None
+        raise
+
+
+def _write(path: Path, content) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:

@@ -6,6 +6,7 @@ callback (Python only prints it), so the signal is also recorded: the executors'
 """
 from __future__ import annotations
 
+import os
 import signal
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -28,6 +29,18 @@ def on_signal(signum, frame) -> None:
         signal.signal(s, signal.SIG_IGN)
     _pending.append(signum)
     raise Interrupted(signum)
+
+
+def quiet_until_handled() -> None:
+    """Until a run installs :func:`on_signal`: SIGINT or SIGTERM print one line and exit 130 / 143 at once (no
+    ``KeyboardInterrupt`` traceback from the middle of an import; nothing has been written yet)."""
+    for s in SIGNALS:
+        signal.signal(s, _exit_quietly)
+
+
+def _exit_quietly(signum, frame) -> None:
+    os.write(2, f"gtsweep: interrupted by {signal.Signals(signum).name} while starting; nothing was run\n".encode())
+    os._exit(128 + signum)
 
 
 def raise_pending() -> None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, Iterable, Iterator, Mapping, TypeVar
 
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
+from gtsweep.core.plugins import check_factory
 
 #: OpenCV's prefix of a reason: ``OpenCV(5.0.0) /path/to/file.cpp:291: error: ``.
 _OPENCV_WHERE = re.compile(r"^OpenCV\([^)]*\)\s+\S+:\d+:\s+error:\s*")
@@ -127,9 +128,11 @@ def lazy_factory(module: str, attribute: str) -> Callable[..., Any]:
 
 
 def import_dotted(path, where: str):
-    """The object a dotted path names (``cv2.xfeatures2d.StarDetector_create``); a one-line BadInput otherwise."""
+    """The object a dotted path names (``cv2.xfeatures2d.StarDetector_create``); a one-line BadInput otherwise. Only
+    a path inside the allowed modules (:mod:`gtsweep.core.plugins`) is imported: anything else is refused first."""
     if not isinstance(path, str) or not path.strip():
         raise BadInput(f"{where}: factory must be a dotted path such as cv2.ORB_create, got {path!r}")
+    check_factory(path.strip(), where)
     parts = path.strip().split(".")
     for split in range(len(parts) - 1, 0, -1):  # the longest importable module, then attributes
         try:

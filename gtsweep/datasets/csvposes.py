@@ -17,7 +17,7 @@ from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset
 from gtsweep.datasets.geometry import similarity_pose
 from gtsweep.datasets.pairing import POSED_DEFAULTS, posed_dataset
-from gtsweep.datasets.posefiles import Entry, Problems, floats, resolve_image
+from gtsweep.datasets.posefiles import Entry, Problems, finite, floats, resolve_image
 
 DEFAULTS = dict(POSED_DEFAULTS)
 COLUMNS = ("image", "x", "y", "theta", "scale")
@@ -57,8 +57,8 @@ def read_rows(file: Path, problems: Problems) -> dict[str, list[Entry]]:
             continue
         row = dict(zip(columns, cells))
         values = floats([row["x"], row["y"], row["theta"], row.get("scale") or "1"])
-        if values is None or values[3] <= 0:
-            problems.report(where, f"x, y, theta, scale must be numbers (scale > 0), found {','.join(cells[1:])}")
+        if not finite(values) or values[3] <= 0:
+            problems.report(where, f"x, y, theta, scale must be finite numbers (scale > 0), found {','.join(cells[1:])}")
             continue
         path = resolve_image(row["image"], [file.parent])
         if path is None:

@@ -1,6 +1,7 @@
 """Reading a loader's options from the Hydra ``dataset`` node (or a plain dict)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -47,6 +48,28 @@ def count(options: Mapping, key: str, allow_none: bool = False) -> int | None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise BadInput(f"dataset.{key} must be a non-negative integer, got {value!r}")
     return value
+
+
+def physical_memory() -> int | None:
+    """Bytes of RAM of this machine (None where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_fits(options: Mapping, keys: dict[str, int], view_bytes: int, copies: int) -> None:
+    """The views that counts ``keys`` ask for (``{key: views per item}``, e.g. 2 per pair), ``copies`` times (one
+    per texture), must fit in this machine's memory: a count nobody can hold is one line before any work, never an
+    attempt to allocate terabytes."""
+    memory = physical_memory()
+    if memory is None:
+        return
+    for key, views in keys.items():
+        need = count(options, key) * views * view_bytes * copies
+        if need > memory:
+            raise BadInput(f"dataset.{key}={options[key]} asks for {need / 2**30:,.0f} GiB of views "
+                           f"({copies} texture(s)); this machine has {memory / 2**30:,.1f} GiB")
 
 
 def choose_textures(found, wanted, root: Path) -> list[str]:

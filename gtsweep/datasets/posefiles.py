@@ -8,6 +8,8 @@ alternating lines; a pose starting with ``*`` is marked incorrect by the data se
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -55,11 +57,16 @@ def numbered_lines(file: Path) -> Iterator[tuple[int, str]]:
 
 
 def floats(tokens: Sequence[str]) -> list[float] | None:
-    """The tokens as floats, or None if any is not a number."""
+    """The tokens as floats, or None if any is not a number (``nan`` and ``inf`` are numbers: :func:`finite`)."""
     try:
         return [float(t) for t in tokens]
     except ValueError:
         return None
+
+
+def finite(values: Sequence[float] | None) -> bool:
+    """Every value is a finite number (a pose with ``nan`` or ``inf`` is a bad item, not a pose)."""
+    return values is not None and all(math.isfinite(v) for v in values)
 
 
 def pose_from_values(values: list[float], where: str, problems: Problems) -> np.ndarray | None:
@@ -67,8 +74,11 @@ def pose_from_values(values: list[float], where: str, problems: Problems) -> np.
     if len(values) != 9:
         problems.report(where, f"pose needs 9 values, found {len(values)}")
         return None
+    if not finite(values):
+        problems.report(where, "pose values must be finite numbers (found nan or inf)")
+        return None
     pose = np.array(values, dtype=np.float64).reshape(3, 3)
-    if not np.all(np.isfinite(pose)) or not np.allclose(pose[2], (0.0, 0.0, 1.0), atol=1e-6):
+    if not np.allclose(pose[2], (0.0, 0.0, 1.0), atol=1e-6):
         problems.report(where, "pose is not an affine matrix (its last row must be 0 0 1)")
         return None
     if abs(np.linalg.det(pose[:2, :2])) < 1e-9:

@@ -82,8 +82,8 @@ def check(options: dict) -> dict:
     size = options["view_size"]
     if not isinstance(size, (list, tuple)) or len(size) != 2 or any(not isinstance(v, int) or v < 16 for v in size):
         raise BadInput(f"dataset.view_size must be [width, height] with integers >= 16, got {size}")
-    for key in ("n_optimisation", "n_synthetic", "n_incremental", "n_absolute"):
-        opts.count(options, key)
+    opts.check_fits(options, {"n_optimisation": 1, "n_synthetic": 1, "n_incremental": 2, "n_absolute": 2},
+                    view_bytes=int(size[0]) * int(size[1]), copies=len(textures))
     if not 0 <= float(options["scale_jitter"]) < 0.5:
         raise BadInput(f"dataset.scale_jitter must lie in [0, 0.5), got {options['scale_jitter']}")
     nested = {key: _merged(key, options[key]) for key in ("incremental", "absolute")}

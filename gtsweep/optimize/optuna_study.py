@@ -8,8 +8,12 @@ on Ray or in-process alike. Trials left RUNNING by a kill are marked FAIL and th
 """
 from __future__ import annotations
 
+import hashlib
+import tempfile
 import warnings
 from pathlib import Path
+
+from filelock import FileLock, Timeout
 from typing import Mapping
 
 from gtsweep.core.errors import BadInput, GtsweepError
@@ -21,8 +25,37 @@ from gtsweep.optimize.study_settings import job_transforms
 from gtsweep.optimize.targets import Target
 
 
+#: The studies this process optimises (their locks are held for the process's life).
+_owned: dict[tuple[str, str], FileLock] = {}
+
+
+def study_lock(storage: str, name: str) -> Path:
+    """The lock file of study ``name`` in ``storage``: beside a sqlite database, else in the temporary folder
+    (so two runs of one machine exclude each other)."""
+    digest = hashlib.sha256(f"{storage}\0{name}".encode()).hexdigest()[:16]
+    if storage.startswith("sqlite:///"):
+        return Path(storage[len("sqlite:///"):]).with_name(f".optuna-study-{digest}.lock")
+    return Path(tempfile.gettempdir()) / f"gtsweep-study-{digest}.lock"
+
+
+def own_study(storage: str, name: str) -> None:
+    """Take study ``name`` for this process: a second identical study started meanwhile stops with one line
+    (it would otherwise take the first's live trials for a kill's leftovers and fail them). A killed process's
+    lock goes with it, so a resume still finds the study free."""
+    if (storage, name) in _owned:
+        return
+    lock = FileLock(study_lock(storage, name), timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise BadInput(f"the study '{name}' is being optimised by another run right now; wait for it to finish "
+                       f"(its trials are shared: this run would then continue it)") from None
+    _owned[(storage, name)] = lock
+
+
 def open_study(storage: str, name: str):
-    """Create or load the study; trials left RUNNING by a kill become FAIL and their parameters are asked again."""
+    """Create or load the study, owned by this process (:func:`own_study`); trials left RUNNING by a kill become
+    FAIL and their parameters are asked again."""
     import optuna
     from optuna.trial import TrialState
 
@@ -30,6 +63,7 @@ def open_study(storage: str, name: str):
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
     if storage.startswith("sqlite:///"):
         Path(storage[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+    own_study(storage, name)
     try:
         rdb = optuna.storages.RDBStorage(storage, engine_kwargs={"connect_args": {"timeout": 60}}
                                          if storage.startswith("sqlite") else None)

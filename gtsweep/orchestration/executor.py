@@ -14,15 +14,16 @@ import importlib.util
 import logging
 import os
 import signal
-import socket
 import sys
 import threading
 import traceback
 from collections import deque
 from typing import Any, Callable, Iterator, Mapping
 
+from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.interrupts import raise_pending
+from gtsweep.orchestration.cluster import address_source, check_address, cluster_address, record_cluster, record_serial
 
 BACKENDS = ("ray", "serial")
 log = logging.getLogger(__name__)
@@ -40,6 +41,7 @@ def make_executor(runner_cfg: Mapping, retries: int = 3):
     """The executor ``runner`` asks for; Ray is started or joined here. ``retries``: Ray's re-runs of a task
     whose worker died (0 for work that may itself kill the worker, e.g. an optimiser trial)."""
     if backend(runner_cfg) == "serial":
+        record_serial()
         return SerialExecutor()
     return RayExecutor(runner_cfg, retries)
 
@@ -203,8 +205,11 @@ def ray_options(runner_cfg: Mapping) -> dict:
     options = {"include_dashboard": dashboard, "logging_level": RAY_LOG_LEVELS[level], "log_to_driver": True}
     if dashboard:
         options["dashboard_host"] = "127.0.0.1"
-    if runner_cfg.get("runtime_env"):
-        options["runtime_env"] = dict(runner_cfg["runtime_env"])
+    runtime_env = dict(runner_cfg.get("runtime_env") or {})
+    if os.environ.get(plugins.ENV):  # the user's plugins may be factories in the workers too (any cluster)
+        runtime_env["env_vars"] = {**(runtime_env.get("env_vars") or {}), plugins.ENV: os.environ[plugins.ENV]}
+    if runtime_env:
+        options["runtime_env"] = runtime_env
     return options
 
 
@@ -225,27 +230,6 @@ def _report_dashboard(context) -> None:
         url = url if "://" in url else f"http://{url}"
         log.info("Ray dashboard: %s", url)
         print(f"gtsweep: Ray dashboard at {url}", file=sys.stderr)
-
-
-def check_address(runner_cfg: Mapping) -> None:
-    """A ``host:port`` cluster address must accept a TCP connection within ``runner.connect_timeout_s``: Ray
-    itself retries "Failed to connect to GCS" for minutes. ``local`` and ``auto`` need no probe."""
-    from gtsweep.orchestration.settings import SETTINGS
-
-    address = str(runner_cfg.get("address") or "local")
-    timeout = SETTINGS["runner.connect_timeout_s"].check("runner.connect_timeout_s",
-                                                         runner_cfg.get("connect_timeout_s", 10))
-    if address in ("local", "auto"):
-        return
-    host, _, port = address.split("://")[-1].rpartition(":")
-    if not host or not port.isdigit():
-        raise BadInput(f"runner.address must be local, auto or host:port, got {address!r}")
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
-    except OSError as e:
-        reason = "timed out" if isinstance(e, socket.timeout) else e.strerror or str(e)
-        raise BadInput(f"cannot reach the Ray cluster at '{address}' within {timeout:g} s "
-                       f"(runner.connect_timeout_s): {reason}") from None
 
 
 @contextlib.contextmanager
@@ -281,7 +265,7 @@ def connect(runner_cfg: Mapping) -> None:
     """
     import ray
 
-    address = runner_cfg.get("address") or "local"
+    address = cluster_address(runner_cfg)
     if ray.is_initialized():
         current = ray.get_runtime_context().gcs_address
         if address in ("local", "auto") or address.split("://")[-1] == current:
@@ -301,12 +285,15 @@ def connect(runner_cfg: Mapping) -> None:
             with _loopback_only():
                 _report_dashboard(ray.init(address="local", num_cpus=num_cpus, _node_ip_address="127.0.0.1",
                                            **options))
+            record_cluster()
             return
         try:
             _report_dashboard(ray.init(address=address, **options))
         except (ConnectionError, RuntimeError, ValueError) as e:
             hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
-            raise BadInput(f"cannot join the Ray cluster at '{address}': {str(e).splitlines()[0]}{hint}") from None
+            raise BadInput(f"cannot join the Ray cluster at '{address}' ({address_source(runner_cfg)}): "
+                           f"{str(e).splitlines()[0]}{hint}") from None
+        record_cluster()
     finally:
         if on_sigterm is not None:
             signal.signal(signal.SIGTERM, on_sigterm)

@@ -16,6 +16,7 @@ from typing import Mapping
 
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.plugins import enable as enable_plugins
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.settings import check_settings
@@ -145,6 +146,7 @@ def resolve_group(cfg: Mapping, group: str, search_space: bool = False) -> dict[
     ``per_detector`` params. An unknown method or parameter, or one the method rejects, is a one-line BadInput.
     """
     registry = REGISTRIES[group]
+    enable_plugins(cfg.get("plugins"))  # configs are data: factories only from allowed modules
     node = plain(cfg.get(group))
     if not isinstance(node, dict) or not node:
         choices = [*registry, *PAIR_TRANSFORMS] if group == "transform" else list(registry)

@@ -21,7 +21,8 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.cache import cache_state
-from gtsweep.orchestration.executor import backend, check_address
+from gtsweep.orchestration.cluster import check_address, cluster_record
+from gtsweep.orchestration.executor import backend
 from gtsweep.orchestration.grid import Cell, Grid, build_grid
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
@@ -199,6 +200,7 @@ def write_run_record(outcome: SweepOutcome, data) -> None:
         "cells": len(outcome.summaries),
         "resumed_cells": outcome.resumed,
         "cache": outcome.cache,
+        "cluster": cluster_record(),  # where the tasks ran: serial, or Ray's address, nodes and CPUs
         "cache_hits": outcome.stats.cache_hits,
         "cache_misses": outcome.stats.cache_misses,
         "cache_corrupt": outcome.stats.cache_corrupt,  # bad entries found, removed and recomputed

@@ -8,7 +8,6 @@ at once in a new directory would otherwise both run MLflow's migrations and coul
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import subprocess
@@ -41,17 +40,19 @@ def store_lock(uri: str) -> Iterator[None]:
     if path is None or path.name in ("", ":memory:"):
         yield
         return
+    from filelock import FileLock
+
+    if not path.parent.is_dir():  # never created for the user: a typo in the URI would leave folders behind
+        raise BadInput(f"cannot use the MLflow store '{uri}': the folder {path.parent} does not exist")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        handle = open(path.with_name(path.name + ".lock"), "a")
+        lock = FileLock(path.with_name(path.name + ".lock"))
+        lock.acquire()
     except OSError as e:
         raise BadInput(f"cannot use the MLflow store '{uri}': {e.strerror or e}") from None
-    with handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+    try:
+        yield
+    finally:
+        lock.release()
 
 
 def probe(uri: str, timeout: float) -> None:

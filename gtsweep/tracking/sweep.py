@@ -16,6 +16,7 @@ a prefix (:mod:`~gtsweep.tracking.metricnames`).
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
 import sys
@@ -73,6 +74,8 @@ class SweepTracker:
         from mlflow.tracking import MlflowClient
 
         quiet_mlflow()
+        # a store error (locked, full) is the sweep's one line (gtsweep.cli.lifecycle), not MLflow's traceback
+        logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
         self.cfg = cfg
         self.uri = tracking_uri(cfg)
         self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
@@ -123,15 +126,23 @@ class SweepTracker:
         self.grid = grid
 
     def _logged_children(self, experiment_id: str) -> set[tuple[str, str]]:
-        """(cell, hash) of the child runs already under the parent (a resumed sweep logs no duplicates). A cell that
-        failed is computed again on resume: its old child run is deleted, the new result logged."""
+        """(cell, hash) of the child runs already complete under the parent (a resumed sweep logs no duplicates).
+
+        A child counts only when it ended (FINISHED or FAILED) with its status tag and, for an evaluated cell, its
+        metrics: a child that a kill left RUNNING or half-logged is deleted, and the cell, complete on disk, is
+        logged again by the resume. A cell that failed is computed again on resume: its old child is deleted too.
+        """
         runs = self.client.search_runs([experiment_id], f"tags.mlflow.parentRunId = '{self.parent_id}'",
                                        max_results=50000)
-        for run in runs:
-            if run.data.tags.get(STATUS_TAG) == "error":
+        complete = set()
+        for run in sorted(runs, key=lambda r: r.info.start_time or 0):
+            tags = run.data.tags
+            key = (tags.get(CELL_TAG), tags.get(HASH_TAG))
+            if key in complete or not child_complete(run) or tags.get(STATUS_TAG) == "error":
                 self.client.delete_run(run.info.run_id)
-        return {(r.data.tags.get(CELL_TAG), r.data.tags.get(HASH_TAG)) for r in runs
-                if r.data.tags.get(STATUS_TAG) != "error"}
+            else:
+                complete.add(key)
+        return complete
 
     def log_cell(self, cell, summary: Mapping, rows=None) -> None:
         """One child run: what identifies the cell (methods as written, seed, data set, method configurations), its
@@ -204,11 +215,19 @@ class SweepTracker:
                             for name in schema.ordered(values) if _finite(values[name])]
         return metrics
 
-    def abort(self, reason: str, status: str = "FAILED") -> None:
-        """Close the parent run as FAILED (the sweep stopped on bad input) or KILLED (interrupted), with why."""
-        if self.parent_id is not None:
+    def abort(self, reason: str, status: str = "FAILED") -> str:
+        """Close the parent run as FAILED (the sweep stopped on bad input or a failure) or KILLED (interrupted),
+        with why. Never raises: the store itself may be what failed; then the returned note says the parent is
+        left open for the resume to close ("" when it was closed)."""
+        if self.parent_id is None:
+            return ""
+        try:
             self.client.set_tag(self.parent_id, REASON_TAG, reason[:5000])
             self.client.set_terminated(self.parent_id, status)
+        except Exception as e:  # noqa: BLE001 - a locked or lost store: the resume closes the run
+            return f" (the MLflow run {self.parent_id} could not be marked {status}: " \
+                   f"{(str(e).strip().splitlines() or [type(e).__name__])[0][:200]})"
+        return ""
 
     def end(self, outcome, artifacts: list[Path] = ()) -> None:
         """Log the sweep's totals and files on the parent run and close it."""
@@ -235,6 +254,14 @@ class SweepTracker:
             return f"MLflow: parent run {self.parent_id}, open {runs_url(self.uri, self.experiment_id)}"
         return (f"MLflow: parent run {self.parent_id}; to browse: mlflow ui --backend-store-uri {self.uri} "
                 f"--host 127.0.0.1 --port 5000, then open {runs_url('http://127.0.0.1:5000', self.experiment_id)}")
+
+
+def child_complete(run) -> bool:
+    """A child run that ended with what its cell needs: FINISHED or FAILED, its status tag, and metrics when
+    the cell was evaluated (an NA or failed cell has none)."""
+    status = run.data.tags.get(STATUS_TAG)
+    return run.info.status in ("FINISHED", "FAILED") and status is not None and \
+        (status != "ok" or bool(run.data.metrics))
 
 
 def _finite(value) -> bool:
