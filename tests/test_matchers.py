@@ -75,6 +75,8 @@ def test_flann_index_is_reproducible():
 def test_too_few_references_or_tests_give_no_match():
     for name in MATCHERS:
         matcher = MATCHERS.get(name).build()
+        if getattr(matcher, "needs_keypoints", False):
+            continue  # LightGlue: tests/test_learned.py
         one = np.zeros((1, 8), np.float32)
         assert matcher.index(np.zeros((0, 8), np.float32), "l2").match(one).shape == (0, 2)
         assert matcher.index(np.zeros((5, 8), np.float32), "l2").match(np.zeros((0, 8), np.float32)).shape == (0, 2)
@@ -105,5 +107,5 @@ def test_registry_params_are_strict_and_checked():
         MATCHERS.get("flann").check({"key_size": 40})
     with pytest.raises(BadInput, match="algorithm must be one of auto, kdtree, lsh"):
         MATCHERS.get("flann").check({"algorithm": "linear"})
-    with pytest.raises(UnknownMethod, match="unknown matcher 'knn'; valid choices: bf_ratio, flann, mutual_nn"):
+    with pytest.raises(UnknownMethod, match="unknown matcher 'knn'; valid choices: bf_ratio, flann, lightglue, mutual_nn"):
         MATCHERS.get("knn")

@@ -24,7 +24,8 @@ from gtsweep.evaluation.transforms import ViewPair
 from gtsweep.evaluation.views import views
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import detect_timed
-from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.lightglue import Side
+from gtsweep.stages.match import MATCHERS, match_sides
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import select
 
@@ -73,6 +74,7 @@ class Described:
     test_kps: np.ndarray
     test_desc: np.ndarray
     seconds: float
+    descriptor: str = ""
 
 
 def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor_params: dict, detector: str,
@@ -91,14 +93,16 @@ def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor
         test_kps = test_kps[:experiment["test_count"]]
     ref_kept, ref_desc, t_ref = memo.describe(view.reference, ref_kps, reference_count)
     test_kept, test_desc, t_test = memo.describe(view.test, test_kps)
-    return Described(ref_kept, ref_desc, test_kept, test_desc, t_ref + t_test)
+    return Described(ref_kept, ref_desc, test_kept, test_desc, t_ref + t_test, descriptor)
 
 
 def match_metrics(view: ViewPair, described: Described, norm: str, matcher, iou_threshold: float = 0.5):
     """Match a described pair with a built matcher (survey 4.2); returns ``(matches, row)``. ``t_match`` includes
     indexing the reference descriptors (a FLANN index's build)."""
     start = time.perf_counter()
-    matches = matcher.index(described.ref_desc, norm).match(described.test_desc)
+    matches = match_sides(matcher, norm, described.ref_desc, described.test_desc,
+                          Side(described.ref_kps, view.reference.shape, described.descriptor),
+                          Side(described.test_kps, view.test.shape, described.descriptor))
     t_match = time.perf_counter() - start
     matching = metrics.matching_precision(described.test_kps, described.ref_kps, matches, view.H, iou_threshold)
     return matches, {

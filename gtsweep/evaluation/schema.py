@@ -32,8 +32,9 @@ EXPERIMENT_ROWS = ("detection", "matching", "pose", "localization")
 #: Columns that identify a view (not aggregated); the cell CSV keeps its transform too, so each row names its
 #: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a
 #: strength, pairs NaN; reference_count is the number of reference keypoints kept (survey Table 7), NaN without
-#: experiment.reference_counts.
-META = ("view", "image", "texture", "transform", "strength", "reference_count")
+#: experiment.reference_counts; rotation is a pair's ground-truth rotation in degrees (0-180; synthetic views have
+#: none: report/rotation.py).
+META = ("view", "image", "texture", "transform", "strength", "rotation", "reference_count")
 #: Identity columns of a localization row (one per query and map size): the query image, whether its floor is in
 #: the map (0: a foreign floor that must be rejected), the map's size, and the estimated pose in map coordinates
 #: (map px of the query's centre; degrees, atan2(P[1, 0], P[0, 0]) of the image -> map pose; NaN when none).

@@ -15,6 +15,11 @@ def make_shard(kind: str, items: list[dict]) -> dict:
     return {"kind": kind, "items": items}
 
 
+def rotation_deg(H: np.ndarray) -> float:
+    """The magnitude (0-180 degrees) of the rotation in a pair's ground-truth homography (report/rotation.py)."""
+    return abs(math.degrees(math.atan2(H[1, 0] - H[0, 1], H[0, 0] + H[1, 1])))
+
+
 def views(shard: dict, transform: str, transform_cfg: dict, seed: int):
     """``(meta, ViewPair)`` for every view of a shard under a transform (every strength of a synthetic one)."""
     if transform_cfg["kind"] == "pairs":
@@ -22,7 +27,8 @@ def views(shard: dict, transform: str, transform_cfg: dict, seed: int):
             full = np.full(item["reference"].shape, 255, np.uint8)
             view = ViewPair(item["reference"], full, item["test"], np.full(item["test"].shape, 255, np.uint8),
                             np.asarray(item["H"], dtype=np.float64), transform, math.nan)
-            yield {"view": item["id"], "image": item["id"], "texture": item["texture"], "strength": math.nan}, view
+            yield {"view": item["id"], "image": item["id"], "texture": item["texture"], "strength": math.nan,
+                   "rotation": rotation_deg(view.H)}, view
         return
     params = transform_cfg.get("params") or {}
     for item in shard["items"]:

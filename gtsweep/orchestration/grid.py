@@ -280,7 +280,7 @@ def _check_moved(experiment: dict) -> None:
 def _matcher_na(grid: Grid, matcher: str, descriptor: str) -> str | None:
     """Why ``matcher`` (with the grid's params) cannot match ``descriptor``'s vectors, else None."""
     built = MATCHERS.get(matcher).build(grid.matcher_params(matcher))
-    return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm)
+    return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm, descriptor)
 
 
 def pairings_of(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:

@@ -108,7 +108,7 @@ def build_localization_grid(cfg: Mapping) -> LocGrid:
         for selector in selected[detector]:
             for matcher, matcher_cfg in grid.matchers.items():
                 reason = applicability(detector, descriptor) or matcher_applicability(
-                    MATCHERS.get(matcher).build(matcher_cfg["params"]), norm)
+                    MATCHERS.get(matcher).build(matcher_cfg["params"]), norm, descriptor, against_map=True)
                 grid.cells += [LocCell(detector, selector, descriptor, matcher, estimator, reason)
                                for estimator in grid.estimators]
     return grid

@@ -22,6 +22,7 @@ from gtsweep.report.breakdown import (
 )
 from gtsweep.report.labels import shown_label, variant_slug
 from gtsweep.report.samples import Views, load_views
+from gtsweep.report.rotation import write_rotation
 from gtsweep.report.scale import Scale, annotate, load_scale, scale_from_config
 from gtsweep.report.tables import (
     ALPHA,
@@ -70,7 +71,7 @@ def _write_set(summaries: list[dict], views: Views | None, out_dir: Path, plots:
     for table in tables:
         table.title += (pinned if table.name.startswith(PAIRING_TABLES) else "") + note
     extra = [t for t in (table_cells(summaries), strength_table(summaries, views, note=note)) if t is not None]
-    files = write_tables(tables + extra, out_dir)
+    files = write_tables(tables + extra, out_dir) + write_rotation(summaries, views, out_dir, plots)
     if plots:
         from gtsweep.report.plots import write_plots
 

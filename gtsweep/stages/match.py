@@ -11,7 +11,8 @@ the ratio test off, the mutual-nearest-neighbour matcher that learned features s
 :data:`MATCHERS` holds the matchers a sweep can compare (the survey's outlook: "different matching ... methods"):
 ``bf_ratio`` (the survey's: brute force, ratio 0.7), ``mutual_nn`` (mutual nearest neighbours, no ratio test) and
 ``flann`` (approximate nearest neighbours with OpenCV's FLANN, as Micro-GPS matches against a whole map: randomised
-KD-trees for real-valued descriptors, Muja & Lowe 2009; multi-probe LSH for binary ones, Lv et al. 2007). A built
+KD-trees for real-valued descriptors, Muja & Lowe 2009; multi-probe LSH for binary ones, Lv et al. 2007) and
+``lightglue`` (learned matching for the descriptors it was trained on: :mod:`gtsweep.stages.lightglue`). A built
 matcher indexes the reference descriptors once (:meth:`index`) and matches any number of test sets against them.
 """
 from __future__ import annotations
@@ -25,7 +26,8 @@ import numpy as np
 
 from gtsweep.core.errors import NotApplicable, UnknownMethod
 from gtsweep.core.ranges import Choice, Range, check_all
-from gtsweep.core.registry import Method, Registry
+from gtsweep.core.registry import Method, Registry, lazy_factory
+from gtsweep.stages.lightglue import Side
 
 _NORMS = {"hamming": (cv2.NORM_HAMMING, cv2.CV_32S), "l2": (cv2.NORM_L2, cv2.CV_32F)}
 
@@ -133,8 +135,8 @@ class Flann:
     def __post_init__(self):
         check_all(dict(vars(self)), _FLANN_RULES, "matcher 'flann' parameter ")
 
-    def applicability(self, norm: str) -> str | None:
-        """Why this matcher cannot match descriptors of ``norm`` (None: it can)."""
+    def applicability(self, norm: str, descriptor: str | None = None, against_map: bool = False) -> str | None:
+        """Why this matcher cannot match descriptors of ``norm`` (None: it can); any descriptor, also a map's."""
         needs = FLANN_ALGORITHMS.get(self.algorithm)
         if needs is None or needs == norm:
             return None
@@ -205,10 +207,20 @@ def _probe(matcher) -> None:
             matcher.index(descriptors, norm).match(descriptors[:8])
 
 
-def applicability(matcher, norm: str) -> str | None:
-    """Why a built matcher cannot match descriptors of ``norm`` (None: it can): the grid's NA cell reason."""
+def applicability(matcher, norm: str, descriptor: str | None = None, against_map: bool = False) -> str | None:
+    """Why a built matcher cannot match ``descriptor``'s vectors of ``norm`` (None: it can): the grid's NA cell
+    reason. ``against_map``: a localization query against a map of many images (learned matchers need one image)."""
     check = getattr(matcher, "applicability", None)
-    return check(norm) if check is not None else None
+    return check(norm, descriptor, against_map) if check is not None else None
+
+
+def match_sides(matcher, norm: str, reference: np.ndarray, test: np.ndarray, reference_side: Side,
+                test_side: Side) -> np.ndarray:
+    """``(M, 2)`` (test, reference) matches of two images' descriptor rows with a built matcher; a learned matcher
+    (``needs_keypoints``) also gets each side's keypoints, image size and descriptor name."""
+    if getattr(matcher, "needs_keypoints", False):
+        return matcher.index(reference, norm, reference_side).match(test, test_side)
+    return matcher.index(reference, norm).match(test)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -227,4 +239,7 @@ MATCHERS: Registry[MatcherSpec] = Registry("matcher", [
     _matcher("flann", "FLANN", Flann, {"ratio": 0.7, "algorithm": "auto", "trees": 4, "checks": 32,
                                        "table_number": 6, "key_size": 12, "multi_probe_level": 1, "seed": 0},
              approximate=True),
+    # LightGlue (ALIKED, DISK) and LighterGlue (XFeat), torch + shipped weights: gtsweep/stages/lightglue.py.
+    _matcher("lightglue", "LightGlue", lazy_factory("gtsweep.stages.lightglue", "LightGlueMatcher"),
+             {"filter_threshold": 0.1, "depth_confidence": 0.95, "width_confidence": 0.99}),
 ], spec=MatcherSpec)
