@@ -23,8 +23,10 @@ from gtsweep.cli.lifecycle import (
     interruptible,
     interruption,
     register_resolvers,
+    resume_command,
     stop_workers,
 )
+from gtsweep.cli.watchdog import watched
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
@@ -65,6 +67,9 @@ def _app(cfg: DictConfig) -> None:
     with interruptible():
         if experiment.job is not None:  # a job of its own (parameter optimisation)
             _job(experiment, cfg, output_dir)
+        elif cfg.runner.get("backend", "ray") == "ray":
+            with watched(output_dir, resume_command()):  # Ray may end this process from its compiled code
+                _sweep(experiment, cfg, hydra_cfg, output_dir)
         else:
             _sweep(experiment, cfg, hydra_cfg, output_dir)
 

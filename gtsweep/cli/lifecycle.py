@@ -164,9 +164,13 @@ def failure_cause(error: BaseException) -> str:
 def exit_failed(error: BaseException, kept: str, marked: str = "") -> None:
     """One line on stderr (the cause, what is kept, how to continue), exit code :data:`EXIT_FAILED`; ``marked``
     says what became of the MLflow run when it could not be marked FAILED."""
-    print(f"gtsweep: error: {failure_cause(error)}; {kept}{marked}; to continue: {resume_command()}",
-          file=sys.stderr)
+    print(failure_line(failure_cause(error), kept, marked), file=sys.stderr)
     sys.exit(EXIT_FAILED)
+
+
+def failure_line(cause: str, kept: str, marked: str = "", resume: str | None = None) -> str:
+    """The one line a failed run ends with (also printed by :mod:`gtsweep.cli.watchdog` for a vanished sweep)."""
+    return f"gtsweep: error: {cause}; {kept}{marked}; to continue: {resume or resume_command()}"
 
 
 def exit_interrupted(error: Interrupted, kept: str) -> None:

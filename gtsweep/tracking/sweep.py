@@ -221,13 +221,7 @@ class SweepTracker:
         left open for the resume to close ("" when it was closed)."""
         if self.parent_id is None:
             return ""
-        try:
-            self.client.set_tag(self.parent_id, REASON_TAG, reason[:5000])
-            self.client.set_terminated(self.parent_id, status)
-        except Exception as e:  # noqa: BLE001 - a locked or lost store: the resume closes the run
-            return f" (the MLflow run {self.parent_id} could not be marked {status}: " \
-                   f"{(str(e).strip().splitlines() or [type(e).__name__])[0][:200]})"
-        return ""
+        return mark_ended(self.client, self.parent_id, reason, status)
 
     def end(self, outcome, artifacts: list[Path] = ()) -> None:
         """Log the sweep's totals and files on the parent run and close it."""
@@ -374,3 +368,20 @@ def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = ())
     for path in artifacts:
         client.log_artifact(run_id, str(path), "combined")
     client.set_terminated(run_id, "FINISHED")
+
+
+def mark_ended(client, run_id: str, reason: str, status: str) -> str:
+    """Close ``run_id`` with ``status`` and why (``client``: an MlflowClient or a tracking URI). Never raises: the
+    store itself may be what failed; then the returned note says the run is left open for the resume to close
+    ("" when it was closed)."""
+    try:
+        if isinstance(client, str):
+            from mlflow.tracking import MlflowClient
+
+            client = MlflowClient(client)
+        client.set_tag(run_id, REASON_TAG, reason[:5000])
+        client.set_terminated(run_id, status)
+    except Exception as e:  # noqa: BLE001 - a locked or lost store: the resume closes the run
+        return f" (the MLflow run {run_id} could not be marked {status}: " \
+               f"{(str(e).strip().splitlines() or [type(e).__name__])[0][:200]})"
+    return ""

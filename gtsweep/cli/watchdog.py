@@ -1,0 +1,115 @@
+"""A second process that closes a Ray sweep's record when the sweep process vanishes without a word.
+
+When Ray's raylet dies mid-run, Ray ends the driver from its compiled code (no Python exception, no ``finally``,
+no ``atexit``): the app cannot mark its MLflow parent run FAILED nor print how to resume. So before Ray starts,
+:func:`watched` starts this module as a small process tied to the sweep by a pipe. Every end the app reaches
+itself (a normal end, bad input, an interrupt, :func:`~gtsweep.cli.lifecycle.exit_failed`) writes ``done`` to the
+pipe and the watchdog leaves quietly. If the pipe closes without it, the sweep process died: the watchdog marks
+the parent run (``mlflow.json`` in the output directory) FAILED with the cause — "the Ray cluster was lost (raylet
+died)" when the sweep's own raylet is gone, else "the sweep process died" — and prints the one
+``gtsweep: error: ...`` line with the resume command. It ignores Ctrl-C and SIGTERM (the sweep handles those and
+says ``done``) and never outlives the pipe, so it is never orphaned.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Iterator
+
+DONE = b"done\n"
+POLL_S = 0.5
+RAYLET_LOST = "the Ray cluster was lost (raylet died)"
+PROCESS_DIED = "the sweep process died"
+
+
+@contextlib.contextmanager
+def watched(output_dir: Path, resume: str) -> Iterator[None]:
+    """Run the body under a watchdog; leaving the body any Python way (return, exception, ``sys.exit``) says
+    ``done``."""
+    watchdog = subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid()), str(output_dir), resume],
+                                stdin=subprocess.PIPE)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            watchdog.stdin.write(DONE)
+            watchdog.stdin.close()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            watchdog.wait(timeout=10)
+
+
+def children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except (OSError, ValueError):
+        return []
+
+
+def raylet_of(pid: int) -> int | None:
+    """The raylet the sweep process started (embedded Ray), if any."""
+    for child in children(pid):
+        with contextlib.suppress(OSError):
+            if Path(f"/proc/{child}/comm").read_text().strip() == "raylet":
+                return child
+    return None
+
+
+def alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except (OSError, IndexError):
+        return False
+
+
+def wait_for_end(sweep_pid: int) -> int | None:
+    """Block until the pipe says ``done`` (None) or closes without it: the sweep's raylet pid seen (or 0)."""
+    raylet, received = None, b""
+    while True:
+        readable, _, _ = select.select([sys.stdin.buffer], [], [], POLL_S)
+        if readable:
+            chunk = os.read(sys.stdin.fileno(), 64)
+            received += chunk
+            if DONE in received:
+                return None
+            if not chunk:
+                return raylet or 0
+        elif os.getppid() != sweep_pid:  # reparented: the sweep is gone though someone still holds the pipe
+            return raylet or 0
+        raylet = raylet or raylet_of(sweep_pid)
+
+
+def mark_failed(output_dir: Path, cause: str) -> str:
+    """Mark the sweep's parent run FAILED; "" when done or when there is none, else a note why not."""
+    from gtsweep.tracking.sweep import PARENT_RECORD, mark_ended
+
+    record = output_dir / PARENT_RECORD
+    if not record.exists():  # MLflow off, or the sweep died before its parent run existed
+        return ""
+    parent = json.loads(record.read_text())
+    return mark_ended(parent["tracking_uri"], parent["parent_run_id"], cause, "FAILED")
+
+
+def main(argv: list[str]) -> int:
+    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.SIG_IGN)
+    sweep_pid, output_dir, resume = int(argv[0]), Path(argv[1]), argv[2]
+    raylet = wait_for_end(sweep_pid)
+    if raylet is None:
+        return 0
+    from gtsweep.cli.lifecycle import failure_line
+
+    cause = RAYLET_LOST if raylet and not alive(raylet) else PROCESS_DIED
+    marked = mark_failed(output_dir, cause)
+    kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
+    print(failure_line(cause, kept, marked, resume), file=sys.stderr, flush=True)
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
