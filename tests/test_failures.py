@@ -60,13 +60,13 @@ def _assert_failed_then_resumed(tmp_path: Path, out: Path, result, cause: str) -
     _assert_true_record(tmp_path, out)
 
 
-def _assert_true_record(tmp_path: Path, out: Path) -> None:
+def _assert_true_record(tmp_path: Path, out: Path, n_cells: int = N_CELLS) -> None:
     runs = _runs(tmp_path)
     assert [r.info.status for r in runs if r.info.status == "RUNNING"] == []
     parent = json.loads((out / "mlflow.json").read_text())["parent_run_id"]
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent]
     assert sorted(r.data.tags["gtsweep.cell"] for r in children) == sorted(p.stem for p in (out / "cells").glob(
-        "*.json")) and len(children) == N_CELLS
+        "*.json")) and len(children) == n_cells
     files = _report(tmp_path, [str(out), "--out", str(tmp_path / "from_files")])
     mlflow = _report(tmp_path, [parent, "--mlflow", "--out", str(tmp_path / "from_mlflow")])
     assert mlflow.replace("from_mlflow", "X") == files.replace("from_files", "X")
@@ -211,3 +211,57 @@ def test_a_child_left_running_is_replaced_on_resume(tmp_path):
     resumed = run_cli(_sweep(tmp_path, out) + ["resume=true"], tmp_path)
     assert resumed.returncode == 0, resumed.stderr
     _assert_true_record(tmp_path, out)
+
+
+RAY_SWEEP = ["runner.backend=ray", "runner.num_cpus=2", "transform=[incremental,absolute,gamma,noise]"]
+RAY_CELLS = 4 * N_CELLS  # enough cells that some are still running when the raylet is killed after the first
+
+
+def _raylet_of(pid: int) -> int | None:
+    """The raylet of the embedded Ray that process ``pid`` started (its child named ``raylet``)."""
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return None
+    for child in children:
+        try:
+            if Path(f"/proc/{child}/comm").read_text().strip() == "raylet":
+                return int(child)
+        except OSError:
+            continue
+    return None
+
+
+def test_a_raylet_killed_mid_run_is_one_line_and_the_parent_fails(tmp_path):
+    """Ray ends the driver from its compiled code when its raylet dies; the watchdog still closes the record."""
+    out = tmp_path / "out"
+    args = [*_sweep(tmp_path, out), *RAY_SWEEP]
+    sweep = subprocess.Popen([sys.executable, "-m", "gtsweep", *args], cwd=tmp_path, env=cli_env(),
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        raylet, deadline = None, time.monotonic() + 300
+        while sweep.poll() is None and time.monotonic() < deadline:
+            raylet = raylet or _raylet_of(sweep.pid)
+            if raylet and any((out / "cells").glob("*.json")):
+                break
+            time.sleep(0.02)
+        assert raylet is not None and sweep.poll() is None, "the sweep ended before its first cell was written"
+        os.kill(raylet, signal.SIGKILL)  # this sweep's own raylet, by pid
+        _, stderr = sweep.communicate(timeout=300)  # the watchdog holds stderr until it has said its line
+    finally:
+        if sweep.poll() is None:
+            sweep.kill()
+            sweep.communicate()
+    errors = [line for line in stderr.splitlines() if line.startswith("gtsweep: error:")]
+    assert sweep.returncode == 1, stderr
+    assert len(errors) == 1, stderr
+    assert "the Ray cluster was lost (raylet died)" in errors[0] and errors[0].endswith("resume=true"), errors
+    assert "Traceback" not in stderr
+    kept = len(list((out / "cells").glob("*.json")))
+    assert 1 <= kept < RAY_CELLS and f"{kept} finished cell(s) kept" in errors[0]
+    parent = json.loads((out / "mlflow.json").read_text())["parent_run_id"]
+    assert {r.info.run_id: r.info.status for r in _runs(tmp_path)}[parent] == "FAILED"
+    resumed = run_cli([*args, "resume=true"], tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{kept} kept from an earlier run" in resumed.stdout
+    _assert_true_record(tmp_path, out, RAY_CELLS)

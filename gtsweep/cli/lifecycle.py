@@ -139,6 +139,7 @@ def resume_command() -> str:
 
 #: Exit code of a run that stopped on a failure of its environment (disk, store, cluster) or a bug: not bad input (2).
 EXIT_FAILED = 1
+RAYLET_LOST = "the Ray cluster was lost (raylet died)"
 
 
 def failure_cause(error: BaseException) -> str:
@@ -152,6 +153,8 @@ def failure_cause(error: BaseException) -> str:
     module = type(error).__module__ or ""
     if "database is locked" in str(error):
         return "the MLflow store is locked by another process (database is locked)"
+    if kind == "LocalRayletDiedError":
+        return RAYLET_LOST
     if module.startswith("ray"):
         return f"the Ray cluster was lost ({kind}: {message})"
     if module.startswith(("mlflow", "sqlalchemy")):

@@ -22,9 +22,10 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
+from gtsweep.cli.lifecycle import RAYLET_LOST, failure_line
+
 DONE = b"done\n"
 POLL_S = 0.5
-RAYLET_LOST = "the Ray cluster was lost (raylet died)"
 PROCESS_DIED = "the sweep process died"
 
 
@@ -102,8 +103,6 @@ def main(argv: list[str]) -> int:
     raylet = wait_for_end(sweep_pid)
     if raylet is None:
         return 0
-    from gtsweep.cli.lifecycle import failure_line
-
     cause = RAYLET_LOST if raylet and not alive(raylet) else PROCESS_DIED
     marked = mark_failed(output_dir, cause)
     kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
