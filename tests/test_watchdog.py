@@ -1,0 +1,62 @@
+"""The watchdog of a Ray sweep (gtsweep.cli.watchdog): silent when the sweep ends by itself (any Python way),
+one line, a FAILED parent run and its cause when the sweep process vanishes (as when Ray ends it for a dead
+raylet). A real process stands in for the sweep; the raylet case itself is in test_failures.py (slow)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from sweep_helpers import cli_env
+
+RESUME = "python -m gtsweep x=1 resume=true"
+
+
+def _sweep_process(tmp_path: Path, body: str) -> subprocess.CompletedProcess:
+    """A process that runs ``body`` under the watchdog with ``tmp_path/out`` as its output directory."""
+    script = textwrap.dedent(f"""
+        import os, sys
+        from pathlib import Path
+        from gtsweep.cli.watchdog import watched
+        with watched(Path({str(tmp_path / 'out')!r}), {RESUME!r}):
+        """) + textwrap.indent(textwrap.dedent(body), "    ")
+    return subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=cli_env(), capture_output=True,
+                          text=True, timeout=120)
+
+
+def _cells(tmp_path: Path, n: int) -> None:
+    (tmp_path / "out" / "cells").mkdir(parents=True)
+    for i in range(n):
+        (tmp_path / "out" / "cells" / f"c{i}.json").write_text("{}")
+
+
+def test_a_sweep_that_ends_by_itself_leaves_the_watchdog_silent(tmp_path):
+    _cells(tmp_path, 1)
+    for body, code in (("pass", 0), ("sys.exit(1)", 1), ("raise SystemExit(130)", 130)):
+        result = _sweep_process(tmp_path, body)
+        assert (result.returncode, result.stderr) == (code, ""), body
+
+
+def test_a_vanished_sweep_gets_one_line_with_the_resume_command(tmp_path):
+    _cells(tmp_path, 2)
+    result = _sweep_process(tmp_path, "os._exit(1)  # as Ray's compiled code ends the driver")
+    assert result.returncode == 1
+    assert result.stderr.splitlines() == [f"gtsweep: error: the sweep process died; 2 finished cell(s) kept in "
+                                          f"{tmp_path / 'out'}; to continue: {RESUME}"]
+
+
+def test_a_vanished_sweep_has_its_parent_run_marked_failed(tmp_path):
+    from mlflow.tracking import MlflowClient
+
+    _cells(tmp_path, 0)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    run = client.create_run(client.create_experiment("x"))
+    (tmp_path / "out" / "mlflow.json").write_text(json.dumps({"parent_run_id": run.info.run_id,
+                                                              "tracking_uri": uri}))
+    result = _sweep_process(tmp_path, "os._exit(1)")
+    assert "the sweep process died" in result.stderr
+    after = client.get_run(run.info.run_id)
+    assert after.info.status == "FAILED" and after.data.tags["gtsweep.reason"] == "the sweep process died"
