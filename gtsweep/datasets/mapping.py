@@ -40,6 +40,9 @@ from gtsweep.datasets.pairing import texture_rng
 from gtsweep.datasets.posefiles import Problems, read_hdground_poses, read_image_list, read_microgps_database
 
 GENERATOR_VERSION = 1
+#: The version of data sets with a ``capture`` group (their maps once ignored it and rendered without its physics):
+#: bumped on its own so that the caches and fingerprints of the default data set stay as they were.
+CAPTURE_GENERATOR_VERSION = 2
 #: Options of the localization data (``experiment.*`` of conf/experiment/localization.yaml).
 DEFAULTS = {"map_images": [4, 16], "map_overlap": 0.5, "n_queries": 4, "n_foreign": 2, "n_unposed": 10,
             "textures": None, "px_per_mm": None}
@@ -194,7 +197,7 @@ def _synthetic(dataset: Mapping, options: dict) -> LocalizationData:
         "textures", "n_optimisation", "n_synthetic", "n_incremental", "n_absolute", "incremental", "absolute")}
     content = {**{k: list(v) if isinstance(v, tuple) else v for k, v in content.items()}, "textures": textures,
                **{k: options[k] for k in ("map_overlap", "n_queries", "n_foreign")}, "map_images": sizes}
-    fingerprint = fingerprint_of("mapping", GENERATOR_VERSION, content)
+    fingerprint = fingerprint_of("mapping", _version(base), content)
     folder = Path(str(base["cache_dir"])).expanduser() / "datasets" / f"mapping-{fingerprint}"
     if not (folder / "index.json").is_file():
         _render(folder, {**base, **content, "view_size": base["view_size"]})
@@ -214,6 +217,10 @@ def _synthetic(dataset: Mapping, options: dict) -> LocalizationData:
     return LocalizationData("synthetic", maps, queries, sizes, ppm, fingerprint)
 
 
+def _version(options: Mapping) -> int:
+    return GENERATOR_VERSION if options["capture"] is None else CAPTURE_GENERATOR_VERSION
+
+
 def _render(folder: Path, options: Mapping) -> None:
     folder.parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f".{folder.name}-{os.getpid()}-", dir=folder.parent))
@@ -221,7 +228,7 @@ def _render(folder: Path, options: Mapping) -> None:
         respect_umask(work, directory=True)
         (work / "images").mkdir()
         views = [r for texture in options["textures"] for r in _render_texture(texture, options, work)]
-        (work / "index.json").write_text(json.dumps({"generator_version": GENERATOR_VERSION, "views": views}))
+        (work / "index.json").write_text(json.dumps({"generator_version": _version(options), "views": views}))
         try:
             os.rename(work, folder)
         except OSError:
