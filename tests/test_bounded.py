@@ -150,4 +150,26 @@ def test_a_double_ctrl_c_leaves_no_ray_process_behind(tmp_path, delay):
     out, err = run.communicate(timeout=120)
     time.sleep(3)
     assert _session_processes(run.pid) == []
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1 and "interrupted by SIGINT" in err, err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("gtsweep: Ray cluster at ")]  # info
+    assert "Traceback" not in err and len(lines) == 1 and "interrupted by SIGINT" in err, err
+
+
+def test_leftover_ray_processes_are_this_commands_descendants_or_orphans_in_its_group(tmp_path):
+    """A fake /proc: Ray's processes in this process's group that descend from it or were orphaned are ended;
+    another group's, a non-Ray child and this process itself are not."""
+    from gtsweep.cli.lifecycle import leftover_ray_processes
+
+    me, group = os.getpid(), os.getpgrp()
+
+    def process(pid, ppid, pgrp, command):
+        (tmp_path / str(pid)).mkdir()
+        (tmp_path / str(pid) / "stat").write_text(f"{pid} (x y) S {ppid} {pgrp} 0 0")
+        (tmp_path / str(pid) / "cmdline").write_bytes(command)
+    process(me, 1, group, b"python\0-m\0gtsweep")
+    process(900001, me, group, b"/ray/core/src/ray/raylet/raylet\0--x")        # child raylet: ours
+    process(900002, 900001, group, b"ray::DashboardAgent")                     # grandchild: ours
+    process(900003, 1, group, b"ray::RuntimeEnvAgent")                          # orphan in our group: ours
+    process(900004, 1, group + 1, b"ray::IDLE")                                # another group's orphan
+    process(900005, me, group, b"sleep\0100")                                   # not Ray
+    process(900006, 4242, group, b"ray::IDLE")                                  # someone else's child
+    assert leftover_ray_processes(tmp_path) == [900001, 900002, 900003]

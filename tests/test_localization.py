@@ -3,8 +3,11 @@ within 1 px and 0.1 deg, rejects a query from another floor, and its grid gives 
 and estimators as for detectors and descriptors."""
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
@@ -18,12 +21,14 @@ from gtsweep.datasets.synthetic import render_view
 from gtsweep.evaluation.evaluate import detect_and_select
 from gtsweep.orchestration.localization import build_localization_grid
 from gtsweep.stages.describe import describe
-from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, pose_columns, vote
+from gtsweep.stages.localize import (Acceptance, FeatureMap, build_map, judge, localize, orientation, pose_columns,
+                                     vote)
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.pose import ESTIMATORS
 
 VIEW = (320, 240)  # (w, h)
 SHAPE = (240, 320)
+CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 def _features(image):
@@ -32,10 +37,23 @@ def _features(image):
     return kept, descriptors
 
 
-@pytest.fixture(scope="module")
-def rendered():
-    """A 2 x 2 mapping run over a procedural asphalt floor (no noise), a query at a known pose inside it, and a
-    query at the same pose on another floor of the same texture."""
+@pytest.fixture(scope="module", params=["synthetic", pytest.param("survey", marks=pytest.mark.slow)])
+def rendered(request, tmp_path_factory):
+    """A mapping run, a query at a known pose inside it and a query from another floor of the same texture, with
+    the image shape. ``synthetic``: a 2 x 2 run over a procedural asphalt floor (no noise) and queries rendered
+    here. ``survey``: dataset=survey's own localization data (1288 x 964 frames of the moving camera: blur,
+    exposure, lighting, sensor noise, tilt in the exact pose; queries also from another day), map of 4 images."""
+    if request.param == "survey":
+        dataset = {**OmegaConf.to_container(OmegaConf.load(CONF / "dataset" / "survey.yaml")),
+                   "cache_dir": str(tmp_path_factory.mktemp("survey"))}
+        data = load_localization(dataset, {"map_images": [4], "n_queries": 1, "n_foreign": 1,
+                                           "textures": ["fine_asphalt"]})
+        shape = (964, 1288)
+        parts = [(*_features(_read(s.path)), s.pose, shape, 0.0) for s in data.maps["fine_asphalt"]]
+        query, foreign = data.queries
+        assert query.in_map and not foreign.in_map
+        return build_map(parts), query.sample.pose, _features(_read(query.sample.path)), \
+            _features(_read(foreign.sample.path)), shape
     side = 900
     floor = floors.make_floor("fine_asphalt", texture_rng(0, "fine_asphalt", "floor"), (side, side), 6.25)
     other = floors.make_floor("fine_asphalt", texture_rng(1, "fine_asphalt", "floor"), (side, side), 6.25)
@@ -43,31 +61,63 @@ def rendered():
     parts = [(*_features(render_view(floor, p, SHAPE)), p, SHAPE, 0.0) for p in poses]
     truth = centred_pose(side / 2 + 37.25, side / 2 - 21.5, 73.0, 1.0, SHAPE)
     return build_map(parts), truth, _features(render_view(floor, truth, SHAPE)), \
-        _features(render_view(other, truth, SHAPE))
+        _features(render_view(other, truth, SHAPE)), SHAPE
 
 
-def _localize(feature_map, features, voting=True):
+def _read(path):
+    return cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+
+
+def _localize(feature_map, features, shape=SHAPE, voting=True):
     index = MATCHERS.get("bf_ratio").build({}).index(feature_map.descriptors, "l2")
     estimators = {"ransac": ESTIMATORS.get("ransac").build({})}
-    result = localize(*features, SHAPE, feature_map, index, estimators, Acceptance(10, 0.0), voting=voting)
+    result = localize(*features, shape, feature_map, index, estimators, Acceptance(10, 0.0), voting=voting)
     return result["poses"]["ransac"]
 
 
 @pytest.mark.parametrize("voting", [True, False])
 def test_query_at_a_known_pose_is_localized_within_1_px_and_0_1_deg(rendered, voting):
-    feature_map, truth, query, _ = rendered
-    estimate, _, accepted = _localize(feature_map, query, voting)
-    verdict = judge(pose_columns(estimate.matrix, SHAPE), truth, SHAPE)
+    feature_map, truth, query, _, shape = rendered
+    estimate, _, accepted = _localize(feature_map, query, shape, voting)
+    verdict = judge(pose_columns(estimate.matrix, shape), truth, shape)
     assert accepted and verdict["within"]
     assert verdict["position_error"] < 1.0
     assert verdict["orientation_error"] < 0.1
 
 
 def test_query_from_another_floor_is_rejected(rendered):
-    feature_map, _, _, foreign = rendered
-    estimate, _, accepted = _localize(feature_map, foreign)
+    feature_map, _, _, foreign, shape = rendered
+    estimate, _, accepted = _localize(feature_map, foreign, shape)
     assert not accepted
     assert estimate.n_inliers < 10
+
+
+def _index(dataset: dict, tmp_path) -> tuple[dict, list]:
+    """The embedded localization data of a small ``dataset`` (one floor, 2 map images, 1 query, 1 foreign) and
+    its index records."""
+    dataset = {"loader": "synthetic", "cache_dir": str(tmp_path), "view_size": [160, 120], **dataset}
+    data = load_localization(dataset, {"map_images": [2], "n_queries": 1, "n_foreign": 1,
+                                       "textures": ["fine_asphalt"]})
+    folder = tmp_path / "datasets" / f"mapping-{data.fingerprint}"
+    return data, json.loads((folder / "index.json").read_text())["views"]
+
+
+def test_without_photometric_ranges_queries_get_no_photometric_change(tmp_path):
+    _, views = _index({"photometric": None}, tmp_path)
+    assert [v["role"] for v in views] == ["map", "map", "query", "foreign"]
+    assert all(v["params"] is None and "frame" not in v for v in views)
+
+
+def test_with_capture_physics_every_view_is_a_frame_and_queries_are_from_another_day(tmp_path):
+    data, views = _index({"photometric": None, "capture": {}, "day": {}}, tmp_path)
+    for view in views:
+        pose = np.array(view["pose"])
+        assert view["params"] is None and set(view["frame"]) >= {"exposure_ms", "pitch_deg", "travel_deg"}
+        assert (view["day"] is not None) == (view["role"] != "map")  # queries and foreign ones: another day
+        # the tilt is in the exact pose: a homography whose centre stays where the layout put it
+        assert pose[2, 2] == 1.0 and np.abs(pose[2, :2]).max() > 0
+    tilted = data.maps["fine_asphalt"][0].pose
+    assert orientation(tilted, (120, 160)) != pytest.approx(orientation(tilted), abs=1e-9)
 
 
 def test_pose_columns_and_judge_by_hand():

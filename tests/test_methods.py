@@ -6,10 +6,9 @@ import yaml
 from gtsweep.core.errors import BadInput, NotApplicable, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.stages import keypoints as kp
-from gtsweep.stages import applicability
 from gtsweep.stages.describe import DESCRIPTORS, describe, descriptor_params
 from gtsweep.stages.detect import DETECTORS, detect
-from gtsweep.stages.applicability import applicability
+from gtsweep.stages.applicability import applicability, describe_timed as describe_applicable
 from gtsweep.stages.select import select_nms
 
 DETECTOR_NAMES = ("harris", "gftt", "fast", "agast", "harris_laplace", "sift", "surf", "censure", "brisk", "orb",
@@ -64,10 +63,10 @@ def test_every_applicable_pairing_runs(gravel_1288x964, selected):
             params = descriptor_params(_config("descriptor", descriptor), detector)
             if (detector, descriptor) in EXPECTED_NA:
                 with pytest.raises(NotApplicable) as info:
-                    applicability.describe_timed(gravel_1288x964, keypoints, descriptor, detector, **params)
+                    describe_applicable(gravel_1288x964, keypoints, descriptor, detector, **params)
                 assert info.value.reason, "an NA pairing must say why"
                 continue
-            kept, desc, _ = applicability.describe_timed(gravel_1288x964, keypoints, descriptor, detector, **params)
+            kept, desc, _ = describe_applicable(gravel_1288x964, keypoints, descriptor, detector, **params)
             assert len(kept) == len(desc) > 0.5 * len(keypoints), (detector, descriptor, len(kept))
             assert np.isfinite(kept[:, :3]).all()
 

@@ -7,7 +7,7 @@ import pytest
 
 from gtsweep.evaluation.statistics import Comparison
 from gtsweep.evaluation.verdicts import BEATS, Claim
-from gtsweep.orchestration.reproduce import run_rounds
+from gtsweep.orchestration.preset_runs import run_rounds
 from gtsweep.report.findings import Hypothesis
 from gtsweep.report.pools import pairings
 from gtsweep.report.samples import matrices

@@ -119,11 +119,44 @@ def interruption(error: BaseException) -> Interrupted | None:
 
 
 def stop_workers() -> None:
-    """Shut down Ray if this process started or joined it."""
+    """Shut down Ray if this process started or joined it, then end Ray's processes of this command that outlived
+    it (a Ctrl-C that reaches the whole process group while Ray starts can kill the raylet before its agents)."""
     ray = sys.modules.get("ray")
-    if ray is not None and ray.is_initialized():
+    if ray is None:
+        return
+    if ray.is_initialized():
         with contextlib.suppress(Exception):
             ray.shutdown()
+    for pid in leftover_ray_processes():
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+
+
+def leftover_ray_processes(proc: Path = Path("/proc")) -> list[int]:
+    """Ray's processes (``ray::...``, raylet, GCS) in this process's group that are this process's descendants or
+    orphans (parent 1): what this command started and nothing else's (Linux; elsewhere none)."""
+    me, group, parents, ray_pids = os.getpid(), os.getpgrp(), {}, set()
+    for entry in proc.glob("[0-9]*"):
+        try:
+            pid = int(entry.name)
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            parents[pid] = int(fields[1])
+            if int(fields[2]) == group and pid != me:
+                command = (entry / "cmdline").read_bytes()
+                if command.startswith(b"ray::") or b"raylet" in command or b"gcs_server" in command:
+                    ray_pids.add(pid)
+        except (OSError, ValueError, IndexError):
+            continue
+
+    def ours(pid: int) -> bool:
+        seen = set()
+        while pid not in (0, 1) and pid not in seen:
+            seen.add(pid)
+            pid = parents.get(pid, 0)
+            if pid == me:
+                return True
+        return False
+    return sorted(p for p in ray_pids if parents.get(p) == 1 or ours(p))
 
 
 def resume_command() -> str:

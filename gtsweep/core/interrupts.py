@@ -6,11 +6,14 @@ callback (Python only prints it), so the signal is also recorded: the executors'
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+from typing import Iterator
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _pending: list[int] = []
+_deferring = {"depth": 0, "arrived": []}  # inside deferred(): signals wait for the end of the block
 
 
 class Interrupted(BaseException):
@@ -28,7 +31,24 @@ def on_signal(signum, frame) -> None:
     for s in SIGNALS:
         signal.signal(s, signal.SIG_IGN)
     _pending.append(signum)
+    if _deferring["depth"]:
+        _deferring["arrived"].append(signum)
+        return
     raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """A block a signal must not cut in two (an MLflow run's records: a write interrupted half-way can leave the
+    store locked, and the run could then not be marked KILLED): SIGINT/SIGTERM arriving inside raise
+    :class:`Interrupted` when the block ends."""
+    _deferring["depth"] += 1
+    try:
+        yield
+    finally:
+        _deferring["depth"] -= 1
+    if not _deferring["depth"] and _deferring["arrived"]:
+        raise Interrupted(_deferring["arrived"].pop(0))
 
 
 def quiet_until_handled() -> None:
@@ -51,3 +71,4 @@ def raise_pending() -> None:
 
 def clear() -> None:
     _pending.clear()
+    _deferring["arrived"].clear()

@@ -6,7 +6,10 @@ texture and queries, some of them from a floor that is not in the map.
   jitter, the data set's scale jitter), exact poses, ordered by distance from the floor's centre so that the map of
   the first ``n`` images is compact and the maps of ``map_images`` are nested. Queries are captured on "another day"
   (the absolute pairs' photometric block: gamma, gain, blur, vignetting, noise), any heading, centred inside the
-  smallest map's area; *foreign* queries are rendered the same way from another floor of the same texture (another
+  smallest map's area (``photometric: null``: no change). With a ``capture`` group (``dataset=survey``) every view
+  is a frame of the moving camera instead, drawn as the pair data set's (:func:`synthetic.as_frame`: blur,
+  exposure, lighting, sensor noise, tilt folded into the exact pose) and queries also on another ``day``; *foreign*
+  queries are rendered the same way from another floor of the same texture (another
   seed; a photo floor mirrored) and must be rejected. Rendered once into
   ``<cache_dir>/datasets/mapping-<fingerprint>/`` (temporary folder, then renamed).
 - **Micro-GPS** (``database.txt``) and **HD Ground** (``*.txt`` pose files): the posed images of a texture are its
@@ -37,6 +40,9 @@ from gtsweep.datasets.pairing import texture_rng
 from gtsweep.datasets.posefiles import Problems, read_hdground_poses, read_image_list, read_microgps_database
 
 GENERATOR_VERSION = 1
+#: The version of data sets with a ``capture`` group (their maps once ignored it and rendered without its physics):
+#: bumped on its own so that the caches and fingerprints of the default data set stay as they were.
+CAPTURE_GENERATOR_VERSION = 2
 #: Options of the localization data (``experiment.*`` of conf/experiment/localization.yaml).
 DEFAULTS = {"map_images": [4, 16], "map_overlap": 0.5, "n_queries": 4, "n_foreign": 2, "n_unposed": 10,
             "textures": None, "px_per_mm": None}
@@ -128,7 +134,7 @@ def _floor_side(options: Mapping) -> int:
     cols = math.ceil(math.sqrt(n))
     rows = math.ceil(n / cols)
     extent = (1 - float(options["map_overlap"])) * np.array([view[0] * (cols - 1), view[1] * (rows - 1)])
-    return int(math.ceil(extent.max() + 2 * layout.footprint_radius(view, jitter) + 8))
+    return int(math.ceil(extent.max() + 2 * layout.footprint_radius(view, jitter, synthetic.reach_px(options)) + 8))
 
 
 def _plan(texture: str, options: Mapping, side: int) -> list[dict]:
@@ -145,9 +151,12 @@ def _plan(texture: str, options: Mapping, side: int) -> list[dict]:
         for k in range(count):
             pose = geometry.centred_pose(*layout.uniform_in(rng, box), rng.uniform(0, 360),
                                          rng.uniform(1 - jitter, 1 + jitter), shape)
-            views.append({"id": f"{texture}/{role}/{k:03d}", "role": role, "pose": pose,
-                          "params": photometric.draw(rng, options["photometric"])})
-    return views
+            params = None if options["photometric"] is None else photometric.draw(rng, options["photometric"])
+            views.append({"id": f"{texture}/{role}/{k:03d}", "role": role, "pose": pose, "params": params})
+    if options["capture"] is None:
+        return views
+    # frames of a moving camera, as the pair data set's views; queries are captured on another day
+    return [synthetic.as_frame(texture, v, options, another_day=v["role"] != "map") for v in views]
 
 
 def _render_texture(texture: str, options: Mapping, folder: Path) -> list[dict]:
@@ -162,8 +171,10 @@ def _render_texture(texture: str, options: Mapping, folder: Path) -> list[dict]:
     records = []
     for view in _plan(texture, options, side):
         rng = texture_rng(options["seed"], texture, view["id"], "capture")
-        image = synthetic.render_view(foreign if view["role"] == "foreign" else floor, view["pose"],
-                                      options["view_size"][::-1], rng, float(options["sensor_noise"]), view["params"])
+        seen = foreign if view["role"] == "foreign" else floor
+        image = synthetic.render_view(seen, view["pose"], options["view_size"][::-1], rng,
+                                      float(options["sensor_noise"]), view["params"]) \
+            if options["capture"] is None else synthetic.render_frame(seen, view, options, rng)
         file = Path("images") / f"{view['id'].replace('/', '_')}.png"
         if not cv2.imwrite(str(folder / file), image):
             raise BadInput(f"cannot write {folder / file}")
@@ -186,7 +197,7 @@ def _synthetic(dataset: Mapping, options: dict) -> LocalizationData:
         "textures", "n_optimisation", "n_synthetic", "n_incremental", "n_absolute", "incremental", "absolute")}
     content = {**{k: list(v) if isinstance(v, tuple) else v for k, v in content.items()}, "textures": textures,
                **{k: options[k] for k in ("map_overlap", "n_queries", "n_foreign")}, "map_images": sizes}
-    fingerprint = fingerprint_of("mapping", GENERATOR_VERSION, content)
+    fingerprint = fingerprint_of("mapping", _version(base), content)
     folder = Path(str(base["cache_dir"])).expanduser() / "datasets" / f"mapping-{fingerprint}"
     if not (folder / "index.json").is_file():
         _render(folder, {**base, **content, "view_size": base["view_size"]})
@@ -206,6 +217,10 @@ def _synthetic(dataset: Mapping, options: dict) -> LocalizationData:
     return LocalizationData("synthetic", maps, queries, sizes, ppm, fingerprint)
 
 
+def _version(options: Mapping) -> int:
+    return GENERATOR_VERSION if options["capture"] is None else CAPTURE_GENERATOR_VERSION
+
+
 def _render(folder: Path, options: Mapping) -> None:
     folder.parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f".{folder.name}-{os.getpid()}-", dir=folder.parent))
@@ -213,7 +228,7 @@ def _render(folder: Path, options: Mapping) -> None:
         respect_umask(work, directory=True)
         (work / "images").mkdir()
         views = [r for texture in options["textures"] for r in _render_texture(texture, options, work)]
-        (work / "index.json").write_text(json.dumps({"generator_version": GENERATOR_VERSION, "views": views}))
+        (work / "index.json").write_text(json.dumps({"generator_version": _version(options), "views": views}))
         try:
             os.rename(work, folder)
         except OSError:

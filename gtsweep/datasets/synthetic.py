@@ -154,26 +154,37 @@ def plan_texture(texture: str, options: Mapping, floor: layout.Floor) -> list[di
 
 
 def frame_of(texture: str, view: dict, views: list[dict], options: Mapping) -> dict:
-    """``view`` as a frame of a moving camera: its capture parameters (own generator per view), the tilt folded
-    into the pose (exact ground truth), the direction of travel in the image and, for an absolute test view,
-    another day's parameters.
+    """``view`` of the pair data set as a frame of a moving camera (:func:`as_frame`); an absolute test view is
+    also captured on another day.
 
     Travel: an incremental pair's frames are taken in sequence, so the camera moved from the reference's centre
     to the test's; other views travel in a random direction."""
-    rng = texture_rng(options["seed"], texture, view["id"], "frame")
-    frame = capture.draw_frame(rng, options["capture"])
     shape = options["view_size"][::-1]
-    pose = view["pose"]
-    travel = float(rng.uniform(0.0, 360.0))
+    travel = None
     if view["split"] == "incremental":
         pair = [v["pose"] for v in views if v.get("pair") == view["pair"]]
         step = geometry.centre(pair[1], shape) - geometry.centre(pair[0], shape)
-        local = np.linalg.inv(pose[:2, :2]) @ step  # map direction -> image direction (before tilt)
+        local = np.linalg.inv(view["pose"][:2, :2]) @ step  # map direction -> image direction (before tilt)
         travel = float(np.degrees(np.arctan2(local[1], local[0])))
+    another_day = view["split"] == "absolute" and view["id"].endswith("/test")
+    return as_frame(texture, view, options, travel, another_day)
+
+
+def as_frame(texture: str, view: dict, options: Mapping, travel_deg: float | None = None,
+             another_day: bool = False) -> dict:
+    """``view`` as a frame of a moving camera: its capture parameters (own generator per view id), the tilt folded
+    into the pose (exact ground truth), the direction of travel in the image (``travel_deg``, else random) and,
+    with ``another_day`` and a ``day`` group, another day's parameters (``render_frame`` applies them)."""
+    rng = texture_rng(options["seed"], texture, view["id"], "frame")
+    frame = capture.draw_frame(rng, options["capture"])
+    shape = options["view_size"][::-1]
+    travel = float(rng.uniform(0.0, 360.0))  # drawn in any case: a view's later draws never depend on its travel
+    if travel_deg is not None:
+        travel = travel_deg
     focal = capture.focal_px(options["capture"], options["px_per_mm"])
-    tilted = pose @ capture.tilt(frame["pitch_deg"], frame["roll_deg"], shape, focal)
+    tilted = view["pose"] @ capture.tilt(frame["pitch_deg"], frame["roll_deg"], shape, focal)
     day = None
-    if view["split"] == "absolute" and view["id"].endswith("/test") and options["day"] is not None:
+    if another_day and options["day"] is not None:
         day = capture.draw_day(rng, options["day"])
     return {**view, "pose": tilted / tilted[2, 2], "frame": {**frame, "travel_deg": travel}, "day": day}
 

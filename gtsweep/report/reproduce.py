@@ -1,6 +1,6 @@
 """Write ``docs/REPRODUCTION.md`` from the survey's table presets: ``python -m gtsweep.report.reproduce``.
 
-The runs themselves are :mod:`gtsweep.orchestration.reproduce`'s (one size, or rounds with ``--size decide``);
+The runs themselves are :mod:`gtsweep.orchestration.preset_runs`'s (one size, or rounds with ``--size decide``);
 this module is the thin command line and the document. The survey's tables are rebuilt beside the paper's
 numbers; each of the survey's findings is a pre-stated hypothesis (:mod:`gtsweep.report.findings`) judged on
 the same images or pairs, with ``--size decide`` under the sequential design of :mod:`gtsweep.report.sequential`;
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
-from gtsweep.orchestration import reproduce as runs
+from gtsweep.orchestration import preset_runs as runs
 from gtsweep.report.findings import check_findings, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import annotate, load_scale

@@ -54,3 +54,27 @@ def sort_by_response(array: np.ndarray) -> np.ndarray:
     """Keypoints sorted by response, largest first; ties keep their detection order (stable)."""
     order = np.argsort(-array[:, RESPONSE], kind="stable")
     return array[order]
+
+
+class UnorientedFloatFeature:
+    """What every network feature (XFeat, ALIKED, DISK) shares as an OpenCV-style ``Feature2D``: keypoints of one
+    fixed ``keypoint_size`` without orientation (angle -1, response = score) and float32 descriptors of
+    :attr:`descriptor_size` compared with the L2 norm."""
+
+    descriptor_size = 0
+
+    def _keypoints(self, xy: np.ndarray, scores: np.ndarray) -> list[cv2.KeyPoint]:
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        array = np.zeros((len(xy), len(COLUMNS)))
+        array[:, [X, Y]], array[:, SIZE], array[:, ANGLE] = xy, self.keypoint_size, -1.0
+        array[:, RESPONSE], array[:, CLASS_ID] = np.asarray(scores, dtype=np.float64).reshape(-1), -1
+        return to_keypoints(array)
+
+    def descriptorSize(self) -> int:  # noqa: N802 (OpenCV names)
+        return self.descriptor_size
+
+    def descriptorType(self) -> int:  # noqa: N802
+        return cv2.CV_32F
+
+    def defaultNorm(self) -> int:  # noqa: N802
+        return cv2.NORM_L2

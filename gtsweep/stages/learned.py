@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput
+from gtsweep.stages.keypoints import UnorientedFloatFeature
 
 KEYPOINT_SIZE = 8.0
 DESCRIPTOR_SIZE = 128
@@ -106,9 +107,11 @@ def in_mask(mask: np.ndarray | None, image_shape, xy: np.ndarray) -> np.ndarray:
     return mask[rows, cols] != 0
 
 
-class LearnedFeature:
+class LearnedFeature(UnorientedFloatFeature):
     """OpenCV-style detector and descriptor (``detect``, ``compute``, ``detectAndCompute``) over a network that
     gives (xy, scores, descriptors) for an image and descriptors for given positions."""
+
+    descriptor_size = DESCRIPTOR_SIZE
 
     name = "learned"
 
@@ -146,19 +149,6 @@ class LearnedFeature:
         with _LOCK:
             descriptors = self.describe_arrays(image, xy[kept])
         return [keypoints[i] for i in kept], np.ascontiguousarray(descriptors, dtype=np.float32)
-
-    def _keypoints(self, xy: np.ndarray, scores: np.ndarray) -> list[cv2.KeyPoint]:
-        size = self.keypoint_size
-        return [cv2.KeyPoint(float(x), float(y), size, -1.0, float(s), 0, -1) for (x, y), s in zip(xy, scores)]
-
-    def descriptorSize(self) -> int:  # noqa: N802 (OpenCV names)
-        return DESCRIPTOR_SIZE
-
-    def descriptorType(self) -> int:  # noqa: N802
-        return cv2.CV_32F
-
-    def defaultNorm(self) -> int:  # noqa: N802
-        return cv2.NORM_L2
 
 
 class Aliked(LearnedFeature):

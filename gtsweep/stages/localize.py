@@ -62,15 +62,29 @@ class FeatureMap:
         return int(self.xy.nbytes + self.angle.nbytes + self.descriptors.nbytes + self.image.nbytes)
 
 
-def orientation(pose: np.ndarray) -> float:
-    """``atan2(P[1, 0], P[0, 0])`` of a 3x3 pose, in degrees."""
-    return math.degrees(math.atan2(pose[1, 0], pose[0, 0]))
+def orientation(pose: np.ndarray, shape=None) -> float:
+    """``atan2(P[1, 0], P[0, 0])`` of a 3x3 pose, in degrees; with the image ``shape`` (h, w), of the pose's
+    Jacobian at the image centre (the same for affine poses; right for a tilted camera's homography)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    linear = pose
+    if shape is not None and not _affine(pose):
+        h, w = shape[:2]
+        centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        scale = pose[2, :2] @ centre + pose[2, 2]
+        linear = (pose[:2, :2] - np.outer(to_map(centre, pose)[0], pose[2, :2])) / scale
+    return math.degrees(math.atan2(linear[1, 0], linear[0, 0]))
+
+
+def _affine(pose: np.ndarray) -> bool:
+    return pose[2, 0] == 0.0 and pose[2, 1] == 0.0 and pose[2, 2] == 1.0
 
 
 def to_map(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Image points ``(N, 2)`` through the 3x3 image -> map ``pose``."""
+    """Image points ``(N, 2)`` through the 3x3 image -> map ``pose`` (a homography: a tilted camera's pose)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    return pts @ np.asarray(pose, dtype=np.float64)[:2, :2].T + np.asarray(pose, dtype=np.float64)[:2, 2]
+    pose = np.asarray(pose, dtype=np.float64)
+    mapped = pts @ pose[:2, :2].T + pose[:2, 2]
+    return mapped if _affine(pose) else mapped / (pts @ pose[2, :2] + pose[2, 2])[:, None]
 
 
 def _footprint(pose: np.ndarray, shape, margin: float) -> np.ndarray:
@@ -89,8 +103,8 @@ def build_map(parts, dedupe: bool = True, margin: float = 16.0) -> FeatureMap:
     keep = [np.ones(len(m), dtype=bool) for m in mapped]
     if dedupe:
         keep = _first_sighting(mapped, [(pose, shape) for _, _, pose, shape, _ in parts], margin)
-    angles = [np.where(k[:, kp.ANGLE] >= 0, k[:, kp.ANGLE] + orientation(pose), np.nan) % 360.0
-              for k, _, pose, _, _ in parts]
+    angles = [np.where(k[:, kp.ANGLE] >= 0, k[:, kp.ANGLE] + orientation(pose, shape), np.nan) % 360.0
+              for k, _, pose, shape, _ in parts]
     descriptors = [d for _, d, _, _, _ in parts]
     return FeatureMap(
         xy=np.concatenate([m[k] for m, k in zip(mapped, keep)]).astype(np.float32),
@@ -183,7 +197,7 @@ def pose_columns(matrix: np.ndarray | None, shape) -> dict:
         return {"est_x": math.nan, "est_y": math.nan, "est_theta": math.nan}
     h, w = shape[:2]
     x, y = to_map(np.array([[(w - 1) / 2, (h - 1) / 2]]), matrix)[0]
-    return {"est_x": float(x), "est_y": float(y), "est_theta": orientation(matrix)}
+    return {"est_x": float(x), "est_y": float(y), "est_theta": orientation(matrix, shape)}
 
 
 def judge(estimated: dict, true_pose: np.ndarray, shape, max_position_error: float = 30.0,

@@ -39,6 +39,7 @@ import numpy as np
 
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import PACKAGE_DIR
+from gtsweep.stages.keypoints import UnorientedFloatFeature
 
 MODEL_PATH = PACKAGE_DIR / "models" / "xfeat.onnx"
 KEYPOINT_SIZE = 8.0
@@ -266,11 +267,13 @@ def describe_arrays(image: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.n
     return keep[nonzero], normalise_rows(raw[nonzero])
 
 
-class XFeat:
+class XFeat(UnorientedFloatFeature):
     """OpenCV-style XFeat detector and descriptor (``cv2.Feature2D``-like; use :func:`XFeat_create`).
 
     Potje et al., "XFeat: Accelerated Features for Lightweight Image Matching", CVPR 2024; Apache-2.0.
     """
+
+    descriptor_size = DESCRIPTOR_SIZE
 
     def __init__(self, top_k: int | None = 4096, detection_threshold: float = 0.05,
                  keypoint_size: float = KEYPOINT_SIZE):
@@ -298,18 +301,6 @@ class XFeat:
         xy, scores, descs = detect_arrays(image, mask, self.top_k, self.detection_threshold)
         return self._keypoints(xy, scores), descs
 
-    def _keypoints(self, xy: np.ndarray, scores: np.ndarray) -> list[cv2.KeyPoint]:
-        size = self.keypoint_size
-        return [cv2.KeyPoint(float(x), float(y), size, -1.0, float(s), 0, -1) for (x, y), s in zip(xy, scores)]
-
-    def descriptorSize(self) -> int:  # noqa: N802 (OpenCV names)
-        return DESCRIPTOR_SIZE
-
-    def descriptorType(self) -> int:  # noqa: N802
-        return cv2.CV_32F
-
-    def defaultNorm(self) -> int:  # noqa: N802
-        return cv2.NORM_L2
 
     def getDefaultName(self) -> str:  # noqa: N802
         return "XFeat"

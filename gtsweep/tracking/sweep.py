@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 from typing import Mapping
 
+from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
 from gtsweep.tracking.figures import FIGURE, strength_figure
 from gtsweep.tracking.metricnames import SWEEP, mlflow_name, summary_name
@@ -148,12 +149,16 @@ class SweepTracker:
         """One child run: what identifies the cell (methods as written, seed, data set, method configurations), its
         schema metrics, steps per strength and their figure, NA reason, its per-view rows; it starts and ends when
         the cell's tasks ran."""
+        if (cell.key, summary.get("hash")) in self.logged:
+            return
+        with interrupts.deferred():  # Ctrl-C waits until the child run is whole
+            self._log_child(cell, summary)
+
+    def _log_child(self, cell, summary: Mapping) -> None:
         from mlflow.entities import Metric, RunTag
 
         from gtsweep.evaluation import schema
 
-        if (cell.key, summary.get("hash")) in self.logged:
-            return
         params = cell_params(cell, self.grid.cell_config(cell, "", 0), self.config, self.fingerprint, self.written)
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
                 STATUS_TAG: summary["status"], **method_tags(cell), **self.source}
