@@ -27,14 +27,15 @@ from gtsweep.cli.lifecycle import RAYLET_LOST, failure_line
 DONE = b"done\n"
 POLL_S = 0.5
 PROCESS_DIED = "the sweep process died"
+WATCH_DIR, WATCH_RESUME = "GTSWEEP_WATCH_OUTPUT_DIR", "GTSWEEP_WATCH_RESUME"
 
 
 @contextlib.contextmanager
 def watched(output_dir: Path, resume: str) -> Iterator[None]:
     """Run the body under a watchdog; leaving the body any Python way (return, exception, ``sys.exit``) says
     ``done``."""
-    watchdog = subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid()), str(output_dir), resume],
-                                stdin=subprocess.PIPE)
+    env = {**os.environ, WATCH_DIR: str(output_dir), WATCH_RESUME: resume}  # not in argv: no stray "raylet" there
+    watchdog = subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid())], stdin=subprocess.PIPE, env=env)
     try:
         yield
     finally:
@@ -99,7 +100,7 @@ def mark_failed(output_dir: Path, cause: str) -> str:
 def main(argv: list[str]) -> int:
     for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(s, signal.SIG_IGN)
-    sweep_pid, output_dir, resume = int(argv[0]), Path(argv[1]), argv[2]
+    sweep_pid, output_dir, resume = int(argv[0]), Path(os.environ[WATCH_DIR]), os.environ[WATCH_RESUME]
     raylet = wait_for_end(sweep_pid)
     if raylet is None:
         return 0
