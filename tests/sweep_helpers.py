@@ -1,10 +1,16 @@
 """Small sweeps on the embedded data set for the integration tests."""
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import socket
 import subprocess
 import sys
+import time
+import urllib.request
 from pathlib import Path
+from typing import Iterator
 
 import pandas as pd
 
@@ -49,3 +55,32 @@ def assert_same_cells(a: Path, b: Path) -> None:
     assert ours.keys() == theirs.keys() and ours
     for key in ours:
         pd.testing.assert_frame_equal(ours[key], theirs[key], check_exact=True, obj=key)
+
+
+@contextlib.contextmanager
+def mlflow_server(uri: str, cwd: Path, *extra: str, timeout: float = 180) -> Iterator[str]:
+    """``mlflow server`` on a free port of 127.0.0.1 over the store ``uri``: its base address once ``/health``
+    answers; SIGTERM to its process group afterwards."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen(
+        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--host", "127.0.0.1",
+         "--port", str(port), "--workers", "1", *extra], cwd=cwd, env=cli_env(), stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.time() + timeout
+        while True:
+            try:
+                with urllib.request.urlopen(f"{base}/health", timeout=2) as response:
+                    if response.status == 200:
+                        break
+            except OSError:
+                pass
+            assert server.poll() is None and time.time() < deadline, "mlflow server did not come up"
+            time.sleep(0.5)
+        yield base
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=60)

@@ -12,17 +12,10 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import os
 import shutil
-import signal
-import socket
-import subprocess
-import sys
-import time
-import urllib.request
 
 import pytest
-from sweep_helpers import TINY_DATASET, cli_env, run_cli
+from sweep_helpers import TINY_DATASET, mlflow_server, run_cli
 
 from gtsweep.tracking.views import VIEW_NAME, run_url
 
@@ -41,12 +34,6 @@ def _chromium() -> str:
     return found
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def ui(tmp_path_factory):
     """A sweep's store behind ``mlflow server``: (base address, the address gtsweep printed, store URI, tmp)."""
@@ -59,28 +46,9 @@ def ui(tmp_path_factory):
                     "transform.rotation.strengths=[0,90]", "report.plots=false", f"mlflow.tracking_uri={uri}"], tmp)
     assert done.returncode == 0, done.stderr[-2000:]
     printed = next(line for line in done.stdout.splitlines() if line.startswith("MLflow: "))
-    port = _free_port()
-    server = subprocess.Popen(
-        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--host", "127.0.0.1",
-         "--port", str(port), "--workers", "1"], cwd=tmp, env=cli_env(), stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL, start_new_session=True)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.time() + 180
-        while True:
-            try:
-                with urllib.request.urlopen(f"{base}/health", timeout=2) as response:
-                    if response.status == 200:
-                        break
-            except OSError:
-                pass
-            assert server.poll() is None and time.time() < deadline, "mlflow server did not come up"
-            time.sleep(0.5)
+    with mlflow_server(uri, tmp) as base:
         hint = printed.split("then open ")[-1].replace("http://127.0.0.1:5000", base)
         yield {"base": base, "hint": hint, "uri": uri, "tmp": tmp, "chromium": chromium}
-    finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        server.wait(timeout=60)
 
 
 @pytest.fixture(scope="module")

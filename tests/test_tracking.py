@@ -3,18 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 import urllib.request
 
 import mlflow
 import pytest
 from omegaconf import OmegaConf
-from sweep_helpers import compose_config, tiny_overrides
+from sweep_helpers import compose_config, mlflow_server, tiny_overrides
 
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.skeleton import run_sweep
@@ -123,32 +117,10 @@ def test_flatten_and_step_scale():
     assert step_scale([0, 15, 90]) == 1 and step_scale([0.1, 1.0]) == 100
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.slow
 def test_mlflow_server_serves_the_sweep(sweep_store, tmp_path):
     _, uri, outcome, tracker = sweep_store
-    port = _free_port()
-    server = subprocess.Popen(
-        [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--host", "127.0.0.1",
-         "--port", str(port), "--workers", "1", "--default-artifact-root", str(tmp_path / "artifacts")],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    base = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.time() + 120
-        while True:
-            try:
-                with urllib.request.urlopen(f"{base}/health", timeout=2) as response:
-                    if response.status == 200:
-                        break
-            except OSError:
-                pass
-            assert server.poll() is None and time.time() < deadline, "mlflow server did not come up"
-            time.sleep(0.5)
+    with mlflow_server(uri, tmp_path, "--default-artifact-root", str(tmp_path / "artifacts"), timeout=120) as base:
         with urllib.request.urlopen(f"{base}/api/2.0/mlflow/experiments/get-by-name?experiment_name=gtsweep") as r:
             experiment_id = json.load(r)["experiment"]["experiment_id"]
         query = json.dumps({"experiment_ids": [experiment_id], "max_results": 1000,
@@ -158,7 +130,3 @@ def test_mlflow_server_serves_the_sweep(sweep_store, tmp_path):
         with urllib.request.urlopen(request) as r:
             runs = json.load(r)["runs"]
         assert len(runs) == len(outcome.summaries)
-    finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        server.wait(timeout=30)
-    assert server.returncode is not None
