@@ -172,4 +172,5 @@ def test_leftover_ray_processes_are_this_commands_descendants_or_orphans_in_its_
     process(900004, 1, group + 1, b"ray::IDLE")                                # another group's orphan
     process(900005, me, group, b"sleep\0100")                                   # not Ray
     process(900006, 4242, group, b"ray::IDLE")                                  # someone else's child
+    process(900007, me, group, b"/work/raylet-study/.venv/bin/python\0-m\0x")  # "raylet" in a path only
     assert leftover_ray_processes(tmp_path) == [900001, 900002, 900003]

@@ -142,8 +142,8 @@ def leftover_ray_processes(proc: Path = Path("/proc")) -> list[int]:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
             parents[pid] = int(fields[1])
             if int(fields[2]) == group and pid != me:
-                command = (entry / "cmdline").read_bytes()
-                if command.startswith(b"ray::") or b"raylet" in command or b"gcs_server" in command:
+                program = (entry / "cmdline").read_bytes().split(b"\0", 1)[0]
+                if program.startswith(b"ray::") or os.path.basename(program) in (b"raylet", b"gcs_server"):
                     ray_pids.add(pid)
         except (OSError, ValueError, IndexError):
             continue
