@@ -34,6 +34,19 @@ def cli_env() -> dict:
     return {**env, "PYTHONPATH": str(PROJECT_DIR)}
 
 
+def session_processes(session: int) -> list[bytes]:
+    """The command lines of the processes in ``session`` (a command started with ``start_new_session=True``)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if os.getsid(int(entry.name)) == session:
+                    found.append((entry / "cmdline").read_bytes().replace(b"\0", b" ")[:120])
+            except (OSError, ProcessLookupError):
+                continue
+    return found
+
+
 def run_cli(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
     """``python -m gtsweep ARGS`` in ``cwd``."""
     return subprocess.run([sys.executable, "-m", "gtsweep", *args], cwd=cwd, env=cli_env(), capture_output=True,

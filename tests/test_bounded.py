@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from sweep_helpers import cli_env, tiny_overrides
+from sweep_helpers import cli_env, session_processes, tiny_overrides
 
 from gtsweep.core.errors import BadInput
 
@@ -122,33 +122,20 @@ def test_ctrl_c_in_the_first_instants_is_one_line(tmp_path, delay):
     assert len(err.strip().splitlines()) == 1 and "interrupted by SIGINT" in err, err
 
 
-def _session_processes(session: int) -> list[bytes]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if os.getsid(int(entry.name)) == session:
-                    found.append((entry / "cmdline").read_bytes().replace(b"\0", b" ")[:120])
-            except (OSError, ProcessLookupError):
-                continue
-    return found
-
-
-#: When the double Ctrl-C comes, by what runs in the command's session: Ray's agents starting (the raylet has just
-#: started them; before they rename themselves ``ray::...``), or the sweep's tasks running.
-MOMENTS = {"agents starting": (b"dashboard/agent.py", b"runtime_env/agent/main.py", b"ray::DashboardAgent"),
-           "tasks running": (b"ray::detect_shard", b"ray::pair_shard", b"ray::IDLE")}
+#: Ray's agents starting, seen in the command's session: the raylet has just started them (they rename themselves
+#: ``ray::...`` once their imports are done). The double Ctrl-C while the sweep's tasks run, and its resume:
+#: test_interrupts.py::test_an_interrupted_sweep_is_killed_cleanly_and_resumes[ray-SIGINT-group].
+AGENTS_STARTING = (b"dashboard/agent.py", b"runtime_env/agent/main.py", b"ray::DashboardAgent")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("moment", MOMENTS)
-def test_a_double_ctrl_c_leaves_no_ray_process_behind(tmp_path, moment):
-    """As a terminal does: SIGINT to the whole process group, twice, while Ray's agents start or its tasks run:
-    one line, exit 130 (no crash in Ray's exit code), no process of the command left."""
+def test_a_double_ctrl_c_leaves_no_ray_process_behind(tmp_path):
+    """As a terminal does: SIGINT to the whole process group, twice, while Ray's agents start: one line, exit 130,
+    no process of the command left (an agent the raylet started just before it died is found and ended)."""
     run = _start([*tiny_overrides(tmp_path), "runner.backend=ray", "mlflow.enabled=false"], tmp_path,
                  start_new_session=True)
     deadline = time.monotonic() + 180
-    while not any(mark in command for command in _session_processes(run.pid) for mark in MOMENTS[moment]):
+    while not any(mark in command for command in session_processes(run.pid) for mark in AGENTS_STARTING):
         assert run.poll() is None and time.monotonic() < deadline, run.communicate()[1][-2000:]
         time.sleep(0.02)
     for _ in range(2):
@@ -159,7 +146,7 @@ def test_a_double_ctrl_c_leaves_no_ray_process_behind(tmp_path, moment):
         time.sleep(0.2)
     out, err = run.communicate(timeout=120)
     time.sleep(3)
-    assert _session_processes(run.pid) == []
+    assert session_processes(run.pid) == []
     lines = [line for line in err.strip().splitlines() if not line.startswith("gtsweep: Ray cluster at ")]  # info
     assert run.returncode == 130, err[-2000:]
     assert "Traceback" not in err and len(lines) == 1 and "interrupted by SIGINT" in err, err

@@ -3,6 +3,8 @@ artifact store, a locked ``mlflow.db`` — ends in one line (exit 1, the cause, 
 run RUNNING once resumed, loses no finished cell, and its MLflow record gives the same report as its files."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import random
@@ -73,10 +75,19 @@ def _assert_true_record(tmp_path: Path, out: Path, n_cells: int = N_CELLS) -> No
 
 
 def _report(cwd: Path, args: list[str]) -> str:
-    result = subprocess.run([sys.executable, "-m", "gtsweep.report", "--no-plots", *args], cwd=cwd, env=cli_env(),
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    return result.stdout
+    """What ``python -m gtsweep.report --no-plots ARGS`` prints in ``cwd`` (its own ``main``, run in this process:
+    no interpreter to start and no imports to repeat, twice per test)."""
+    from gtsweep.experiments.report_command import main
+
+    printed, saved = io.StringIO(), os.environ.pop("MLFLOW_TRACKING_URI", None)  # as cli_env(): the default store
+    try:
+        with contextlib.chdir(cwd), contextlib.redirect_stdout(printed):
+            code = main(["--no-plots", *args])
+    finally:
+        if saved is not None:
+            os.environ["MLFLOW_TRACKING_URI"] = saved
+    assert code == 0, printed.getvalue()
+    return printed.getvalue()
 
 
 FAIL_ON_THIRD_CELL = """
@@ -176,7 +187,7 @@ def test_a_locked_mlflow_store_is_one_line_and_the_parent_fails_once_it_is_free(
                                 "the MLflow store is locked")
 
 
-LOCK_SECONDS = 40
+LOCK_SECONDS = 30  # past MLflow's SQLite wait (busy_timeout 20 s), within the wait of the FAILED mark after it
 
 
 @pytest.mark.parametrize("attempt", range(3))
