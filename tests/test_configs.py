@@ -69,14 +69,16 @@ def test_user_configs_are_valid_choices(user_conf):
     with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
         cli.expand_all(["-m", "detector=glob(zz*)"])
     with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
-        cli.validate(["--config-dir", str(user_conf), "detector=[my_starr]"])
+        cli.prepare(["--config-dir", str(user_conf), "detector=[my_starr]"])
     with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):
-        cli.validate(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
-    cli.validate(["detector=[sift,my_star]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+        cli.prepare(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
+    prepared = cli.prepare(["detector=[sift,my_star]", "--config-dir", str(user_conf),
+                            "detector.my_star.params.maxSize=3"])
+    assert "++detector.my_star.params.maxSize=3" in prepared  # declared in YAML: keyed by name after composing
     with pytest.raises(BadInput, match="detector 'my_star' is not selected"):  # Hydra would refuse it later
-        cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+        cli.prepare(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
     with pytest.raises(UnknownMethod):  # without the user's directory it does not exist
-        cli.validate(["detector=[my_star]"])
+        cli.prepare(["detector=[my_star]"])
 
 
 @pytest.mark.parametrize("node, message", [
