@@ -108,7 +108,8 @@ def composer(args):
 
     config_dir = parse(args).config_dir
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
-    register_sources(), register_resolvers(), register_help_resolver(), register_schemas()
+    for register in (register_sources, register_resolvers, register_help_resolver, register_schemas):
+        register()
 
     def composed(overrides):
         overrides = list(overrides)
@@ -148,6 +149,7 @@ def check(args: list[str]) -> None:
 
 
 def values_of(override) -> list:
+    """The values an override sets (each choice of a sweep)."""
     value = override.value()
     return list(value.list) if hasattr(value, "list") else [value]
 
@@ -207,8 +209,14 @@ def unknown_key(written: str, missing: str, cause, args) -> GtsweepError:
         if depth == len(parts) and (parts[2] == "params" and depth == 4 or parts[2] == "per_detector" and depth == 5):
             method = REGISTRIES[group].get(name, None)
             known = sorted(method.defaults) if method is not None else sorted(parent or ())
+            if parts[-1] in known:  # a config of the user's that replaces the package's without its schema
+                return BadInput(f"{group} '{name}': its config does not compose onto its defaults, so '{parts[-1]}' "
+                                f"cannot be set; list /schema/{group}/{name}@_here_ first in its defaults")
             return BadInput(f"{group} '{name}' has no parameter '{parts[-1]}'; its parameters: "
                             f"{', '.join(known) or 'none'}")
+        if parts[2] == "per_detector" and depth == 4 and len(parts) == 5:
+            return BadInput(f"{group} '{name}' has no per_detector entry '{parts[3]}' (its entries: "
+                            f"{', '.join(sorted(parent or ())) or 'none'}); a new one is appended: +{written}=...")
     moved = MOVED.get(written.removeprefix("experiment."))
     if written.startswith("experiment.") and moved:
         group, name = moved.split(".")[:2]
