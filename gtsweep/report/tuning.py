@@ -35,7 +35,7 @@ def read_header(path: Path) -> dict:
     for key, pattern in (("stop", _STOP), ("selector", _SELECTOR), ("fingerprint", _FINGERPRINT)):
         if m := pattern.search(header):
             row[key] = m.group(1)
-    node = next(iter((yaml.safe_load(text) or {}).values()), {}) or {}
+    node = (yaml.safe_load(text) or {}).get(row["detector"]) or {}  # beside it: the defaults list (its schema)
     space, params = node.get("search_space") or {}, node.get("params") or {}
     row["values"] = {k: params[k] for k in space if k in params}
     return row
