@@ -102,9 +102,11 @@ class ViewReuse:
             if stored is not None and stored.get("reuse_key") == self.reuse_key(cell):
                 held = stored.get("items") or {}
                 same = {i for i, fp in items.items() if fp is not None and held.get(i) == fp}
-            if same:
-                rows = self.store.rows(cell.key)
-                self.kept[cell.key] = rows[rows["image"].astype(str).isin(same)] if len(rows) else rows
+            rows = self.store.rows(cell.key) if same else pd.DataFrame()
+            if "image" not in rows:  # rows without their images named cannot be split: all evaluated again
+                same = set()
+            else:
+                self.kept[cell.key] = rows[rows["image"].astype(str).isin(same)]
             missing = tuple(i for i in items if i not in same)
             self.reused, self.evaluated = self.reused + len(same), self.evaluated + len(missing)
             if missing:
