@@ -28,6 +28,7 @@ from gtsweep.report.samples import load_views
 from gtsweep.report.scale import annotate, load_scale
 from gtsweep.report.sequential import Sequential
 from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
+from gtsweep.report.tuning import tuning_table
 
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])
@@ -114,7 +115,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
              f"on this machine ({os.cpu_count()} cores): {sum(r['wall_s'] for r in results) / 60:.0f} min for all "
              "runs. Cells read `ours [low, high] (paper)`: the ends of our 95 % interval over images (a t interval; "
              "a design-effect Wilson interval for a rate); NA = not applicable.",
-             "", scale.line(), "", *([tuned_line(tuning), ""] if tuning else []),
+             "", scale.line(), "", *([tuned_line(tuning), "", tuning_table(TUNED), ""] if tuning else []),
              ("| round " if rounds else "") + "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate "
              "| MLflow runs |" + (" images or pairs evaluated (kept) |" if rounds else ""),
              ("|---" if rounds else "") + "|---|---|---|---|---|---|" + ("---|" if rounds else "")]
