@@ -47,6 +47,15 @@ def session_processes(session: int) -> list[bytes]:
     return found
 
 
+def session_ends(session: int, timeout: float = 3) -> list[bytes]:
+    """What is left in ``session`` ``timeout`` seconds after its command ended: [] as soon as it is empty (no
+    process can join an empty session), else the processes still there at the end."""
+    deadline = time.monotonic() + timeout
+    while (left := session_processes(session)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return left
+
+
 def run_cli(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
     """``python -m gtsweep ARGS`` in ``cwd``."""
     return subprocess.run([sys.executable, "-m", "gtsweep", *args], cwd=cwd, env=cli_env(), capture_output=True,

@@ -105,7 +105,8 @@ def test_cli_refuses_a_port_that_is_not_ray_in_one_line_before_the_parent_run(tm
     assert run.returncode == 2 and len(err.strip().splitlines()) == 1 and "is not a Ray head" in err, err
     assert time.perf_counter() - start < 40  # Python, Hydra and the imports, then 2 s
     _no_parent_run(tmp_path)
-    run = _cli(tmp_path, "runner.backend=ray", env={"RAY_ADDRESS": f"127.0.0.1:{silent.port}"})
+    run = _cli(tmp_path, "runner.backend=ray", "runner.connect_timeout_s=2",  # the source is named, at any wait
+               env={"RAY_ADDRESS": f"127.0.0.1:{silent.port}"})
     out, err = run.communicate(timeout=120)
     assert run.returncode == 2 and "(RAY_ADDRESS) accepts connections but is not a Ray head" in err, err
 
