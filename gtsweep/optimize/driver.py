@@ -18,6 +18,7 @@ from gtsweep.core.config import plain
 from gtsweep.core.interrupts import Interrupted
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
 from gtsweep.optimize.tuned_files import (
+    defaults_trial,
     describe_best,
     format_summary,
     tuned_header,
@@ -76,7 +77,8 @@ def main(cfg, output_dir: str | Path) -> list[dict]:
                 tracker.end(study, [], status="KILLED" if killed else "FAILED")
             raise
         complete = len(complete_trials(study))
-        header = tuned_header(target, settings, name, best, complete, fingerprint)
+        header = tuned_header(target, settings, name, best, complete, fingerprint,
+                              defaults_trial(complete_trials(study)))
         path = write_tuned(root / target.group / "tuned" / f"{target.name}.yaml", target, best.params, header)
         copy = write_tuned(output_dir / "tuned" / target.group / f"{target.name}.yaml", target, best.params, header)
         if tracker is not None:

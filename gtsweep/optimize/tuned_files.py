@@ -62,14 +62,34 @@ def storage_label(storage: str) -> str:
     return f"sqlite:///{relative if not relative.startswith('..') else os.path.basename(path)}"
 
 
-def tuned_header(target: Target, settings: Mapping, name: str, best, complete: int, fingerprint: str) -> list[str]:
-    """The comment lines on top of a tuned config: which study, which trial, on what data."""
-    return [f"Tuned by gtsweep experiment=optimize on {time.strftime('%Y-%m-%d %H:%M:%S')}: study '{name}'",
-            f"({storage_label(settings['storage'])}), best of {complete} complete trials: trial {best.number},",
-            f"objective {settings['objective']}: {describe_best(best, settings)}.",
-            f"Data set fingerprint {fingerprint}." + (f" Tuned on {target.detector} keypoints."
-                                                       if target.group == "descriptor" else ""),
-            f"Use it: python -m gtsweep {target.group}=[tuned/{target.name}]"]
+def stop_reason(complete: int, settings: Mapping) -> str:
+    """Why the study stopped (:mod:`gtsweep.optimize.stopping`): its best settled, or the trial maximum."""
+    patience, gain = settings.get("patience"), settings.get("min_improvement") or 0
+    if patience and complete < settings["n_trials"]:
+        return f"stopped: no gain > {gain:g} in the last {patience} trials"
+    return f"stopped: n_trials = {settings['n_trials']} reached" + (f" (patience {patience})" if patience else "")
+
+
+def tuned_header(target: Target, settings: Mapping, name: str, best, complete: int, fingerprint: str,
+                 defaults=None) -> list[str]:
+    """The comment lines on top of a tuned config: which study, which trial, on what data, why it stopped, and
+    the defaults' own score (``defaults``: the study's enqueued trial of the method's default parameters)."""
+    lines = [f"Tuned by gtsweep experiment=optimize on {time.strftime('%Y-%m-%d %H:%M:%S')}: study '{name}'",
+             f"({storage_label(settings['storage'])}), best of {complete} complete trials: trial {best.number},",
+             f"objective {settings['objective']}: {describe_best(best, settings)}; {stop_reason(complete, settings)}.",
+             f"Data set fingerprint {fingerprint}." + (f" Tuned on {target.detector} keypoints."
+                                                        if target.group == "descriptor" else "")]
+    if defaults is not None:
+        lines.append(f"Defaults (trial {defaults.number}): {describe_best(defaults, settings)}.")
+    if settings.get("selector") and target.group == "detector":
+        lines.append(f"Selector: {settings['selector']['name']} to n = "
+                     f"{(settings['selector'].get('params') or {}).get('n', 1000)}.")
+    return [*lines, f"Use it: python -m gtsweep {target.group}=[tuned/{target.name}]"]
+
+
+def defaults_trial(trials):
+    """The complete trial of the default parameters (enqueued as trial 0), or None."""
+    return next((t for t in trials if t.user_attrs.get("defaults") and t.value is not None), None)
 
 
 def format_summary(s: Mapping, settings: Mapping) -> str:
