@@ -155,6 +155,11 @@ def test_describing_own_keypoints_repeats_the_detector_descriptors_in_one_pass(v
     assert len(kept) == len(keypoints) and again.shape == (len(keypoints), 128) and again.dtype == np.float32
     np.testing.assert_array_equal(again, descriptors)
     np.testing.assert_allclose(np.linalg.norm(again, axis=1), 1.0, atol=1e-5)
+    # the path for any other position, read at the detector's own keypoints, gives the same vectors: the pixel
+    # convention of positions (centres at integers; ALIKED: (w - 1, h - 1) with align_corners=True) is the network's
+    with torch.inference_mode():
+        sampled = feature.sample(feature.dense(views[0]), views[0].shape, kp.to_array(keypoints)[:, :2])
+    np.testing.assert_allclose(sampled, descriptors, rtol=0, atol=1e-6)
     mixed = keypoints[:30] + kp.to_keypoints(detect(views[0], "sift")[:30])
     _, with_memo = feature.compute(views[0], mixed)
     DETECTIONS.clear()
