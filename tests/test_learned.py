@@ -17,7 +17,7 @@ from gtsweep.stages.detect import DETECTORS, detect
 from gtsweep.stages.lightglue import Side
 from gtsweep.stages.match import MATCHERS, applicability, match_sides
 from gtsweep.stages.applicability import applicability as pairing_applicability
-from gtsweep.stages.learned import DETECTIONS, Aliked, LearnedFeature
+from gtsweep.stages.learned import DETECTIONS, Aliked, Detection, Detections, LearnedFeature
 from gtsweep.stages.torch_standin import deform_conv2d, install
 
 LEARNED = ("aliked_n16", "aliked_n16rot", "disk")
@@ -168,6 +168,22 @@ def test_describing_own_keypoints_repeats_the_detector_descriptors_in_one_pass(v
     DETECTIONS.clear()
     _, mixed_fresh = feature.compute(views[0], mixed)
     np.testing.assert_array_equal(mixed_fresh, with_memo)
+
+
+def test_detection_rows_are_found_by_exact_position_and_the_memo_is_bounded():
+    xy = np.array([[10.25, 3.5], [0.0, 7.0], [99.125, 42.0]])
+    detection = Detection(xy, np.arange(3.0), np.eye(3, 128, dtype=np.float32))
+    asked = np.array([[0.0, 7.0], [10.25, 3.5], [10.25, 3.6], [99.125 + 1e-9, 42.0], [1.0, 1.0]])
+    np.testing.assert_array_equal(detection.rows_of(asked), [1, 0, -1, -1, -1])  # 3.6, +1e-9: not float32 exact
+    memo = Detections(capacity=2)
+    keys = [Detections.key(("m",), np.full((4, 5), value, np.uint8)) for value in (1, 2, 3)]
+    assert keys[0] != Detections.key(("m",), np.full((5, 4), 1, np.uint8)) != Detections.key(("n",), np.full(
+        (4, 5), 1, np.uint8))
+    memo.put(keys[0], detection)
+    memo.put(keys[1], detection)
+    assert memo.get(keys[0]) is detection  # now the most recently used
+    memo.put(keys[2], detection)
+    assert memo.get(keys[1]) is None and memo.get(keys[0]) is detection and memo.get(keys[2]) is detection
 
 
 def test_aliked_variants_load_their_own_weights():
