@@ -69,14 +69,16 @@ def test_user_configs_are_valid_choices(user_conf):
     with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
         cli.expand_all(["-m", "detector=glob(zz*)"])
     with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
-        cli.validate(["--config-dir", str(user_conf), "detector=[my_starr]"])
+        cli.prepare(["--config-dir", str(user_conf), "detector=[my_starr]"])
     with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):
-        cli.validate(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
-    cli.validate(["detector=[sift,my_star]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+        cli.prepare(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
+    prepared = cli.prepare(["detector=[sift,my_star]", "--config-dir", str(user_conf),
+                            "detector.my_star.params.maxSize=3"])
+    assert "++detector.my_star.params.maxSize=3" in prepared  # declared in YAML: keyed by name after composing
     with pytest.raises(BadInput, match="detector 'my_star' is not selected"):  # Hydra would refuse it later
-        cli.validate(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+        cli.prepare(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
     with pytest.raises(UnknownMethod):  # without the user's directory it does not exist
-        cli.validate(["detector=[my_star]"])
+        cli.prepare(["detector=[my_star]"])
 
 
 @pytest.mark.parametrize("node, message", [
@@ -162,3 +164,48 @@ def test_pyproject_ships_every_package_and_the_configs():
     assert packages | {"gtsweep.conf.sweeps"} == set(setuptools["packages"])
     assert setuptools["package-dir"] == {"gtsweep.conf": "conf", "gtsweep.conf.sweeps": "sweeps"}
     assert CONF_DIR == PROJECT_DIR / "conf" and (CONF_DIR / "__init__.py").exists()
+
+
+def test_every_package_method_config_composes_onto_its_schema():
+    """A method of the code has its defaults in the ConfigStore (gtsweep.cli.schemas); its YAML lists that schema
+    first, so that Hydra merges the file and the command line onto the defaults once. (A tuned file holds every
+    parameter; experiment=optimize writes the same line into it, so that its values are typed too.)"""
+    import yaml
+
+    for group, registry in REGISTRIES.items():
+        for path in (CONF_DIR / group).glob("*.yaml"):
+            if path.stem in registry:
+                defaults = yaml.safe_load(path.read_text())["defaults"]
+                assert defaults == [f"/schema/{group}/{path.stem}@_here_", "_self_"], path
+
+
+def test_hydra_types_the_parameters_and_settings(tmp_path):
+    cfg = cli.compose_config(["detector=[orb]", "detector.orb.params.scaleFactor=2", "runner.shard_size=3"])
+    assert cfg.detector.orb.params.scaleFactor == 2.0 and isinstance(cfg.detector.orb.params.scaleFactor, float)
+    assert cfg.runner.shard_size == 3
+    assert cfg.detector.orb.params.nfeatures == DETECTORS.get("orb").defaults["nfeatures"]
+    with pytest.raises(BadInput, match=r"override 'detector.orb.params.nfeatures=1.5': expected an int like the "
+                                       r"default \d+, got '1.5'"):
+        cli.prepare(["detector=[orb]", "detector.orb.params.nfeatures=1.5"])
+    with pytest.raises(BadInput, match="override 'runner.shard_size=many': expected an int"):
+        cli.prepare(["runner.shard_size=many"])
+    with pytest.raises(BadInput, match=r"runner.shard_size must be an integer in \[1, inf\), got 0"):  # its range
+        cli.prepare(["runner.shard_size=0"])
+
+
+def test_a_users_config_without_the_schema_keeps_the_defaults_but_names_what_it_misses(user_conf):
+    cfg = compose_config(["detector=[sift]"], config_dir=str(user_conf))
+    assert dict(cfg.detector.sift.params) == {"contrastThreshold": 0.02}
+    assert build_grid(cfg).detectors["sift"]["params"] == {**DETECTORS.get("sift").defaults, "contrastThreshold": 0.02}
+    with pytest.raises(BadInput, match="detector 'sift': its config does not compose onto its defaults, so 'sigma' "
+                                       "cannot be set; list /schema/detector/sift@_here_ first in its defaults"):
+        cli.prepare(["--config-dir", str(user_conf), "detector=[sift]", "detector.sift.params.sigma=1.5"])
+
+
+def test_a_descriptors_per_detector_entries_are_its_yamls_and_a_new_one_is_appended():
+    with pytest.raises(BadInput, match=r"descriptor 'teblid' has no per_detector entry 'akaze' \(its entries: kaze, "
+                                       r"orb, sift, surf\); a new one is appended: \+descriptor.teblid"):
+        cli.prepare(["descriptor=[teblid]", "descriptor.teblid.per_detector.akaze.scale_factor=6.0"])
+    cfg = cli.compose_config(["detector=[akaze]", "descriptor=[teblid]",
+                              "+descriptor.teblid.per_detector.akaze.scale_factor=6.0"])
+    assert cfg.descriptor.teblid.per_detector.akaze.scale_factor == 6.0

@@ -1,34 +1,44 @@
-"""A method parameter given on the command line is merged onto the method's defaults in one place: the grid's
-:func:`~gtsweep.orchestration.grid.resolve_group`. The command line checks it against the defaults without merging;
-the pre-flight build and the task receive the full parameters (merging those onto the defaults changes nothing)."""
+"""A method parameter given on the command line is merged onto the method's defaults in one place: Hydra's
+composition, onto the method's schema in the ConfigStore (:mod:`gtsweep.cli.schemas`). The command line's checks
+compose without gtsweep merging anything; the grid, the pre-flight build and the task receive the full parameters
+(a strict :meth:`~gtsweep.core.registry.Method.params` of full parameters adds nothing)."""
 from __future__ import annotations
 
 import numpy as np
+from omegaconf import OmegaConf
 
 from gtsweep.cli import overrides as cli
+from gtsweep.cli import schemas
 from gtsweep.core.registry import Method
 from gtsweep.orchestration.grid import build_grid
-from gtsweep.stages.detect import detect_timed
+from gtsweep.stages.detect import DETECTORS, detect_timed
 
 
 def test_a_command_line_parameter_is_merged_onto_its_defaults_once(monkeypatch):
-    merges, calls = [], []
-    original = Method.params
+    merges, calls, stored = [], [], []
+    original_params, original_schema = Method.params, schemas.method_schema
 
     def counting(self, overrides=None):
         if self.family == "detector" and self.name == "orb":
             calls.append(dict(overrides or {}))
-            if overrides and set(overrides) != set(self.defaults):  # some defaults filled in: a real merge
+            if overrides is not None and set(overrides) != set(self.defaults):  # defaults filled in: a merge
                 merges.append(dict(overrides))
-        return original(self, overrides)
+        return original_params(self, overrides)
+
+    def schema(name, defaults):  # what Hydra composes onto: the code defaults, as they are
+        stored.append(name)
+        return original_schema(name, defaults)
 
     monkeypatch.setattr(Method, "params", counting)
+    monkeypatch.setattr(schemas, "method_schema", schema)
     args = ["detector=[orb]", "descriptor=[orb]", "detector.orb.params.nfeatures=500"]
-    cli.prepare(args)  # the command line's checks
-    assert calls == []  # checked against the defaults, never merged
-    grid = build_grid(cli.compose_config(args))
+    cli.prepare(args)  # the command line's checks: Hydra composes the job, gtsweep merges nothing
+    assert calls == [] and "orb" in stored
+    cfg = cli.compose_config(args)
+    composed = OmegaConf.to_container(cfg.detector.orb.params)
+    assert composed == {**DETECTORS.get("orb").defaults, "nfeatures": 500}  # merged by Hydra, in full
+    grid = build_grid(cfg)
     params = grid.detectors["orb"]["params"]
-    assert params["nfeatures"] == 500 and len(params) > 1  # the full parameters travel on
     image = np.random.default_rng(0).integers(0, 255, (240, 320), dtype=np.uint8)
     detect_timed(image, "orb", None, **params)  # what a detection task does with the grid's parameters
-    assert merges == [{"nfeatures": 500}]
+    assert params == composed and calls and merges == []  # nobody after Hydra merged defaults in again

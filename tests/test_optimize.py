@@ -98,7 +98,7 @@ def test_tuned_config_loads_back_through_hydra(first, monkeypatch):
     assert cfg.detector.fast.params.type == 2  # untuned defaults are kept
     assert {c.detector for c in build_grid(cfg).cells} == {"fast", "orb"}
     with pytest.raises(UnknownMethod, match="tuned/fast"):  # the CLI's check lists tuned options
-        cli.validate(["detector=[tuned/siftt]"])
+        cli.prepare(["detector=[tuned/siftt]"])
 
 
 def test_resume_continues_the_study_without_duplicate_runs(first):

@@ -97,15 +97,19 @@ def test_all_expands_to_every_option():
     (["descriptor=brieff"], "unknown descriptor 'brieff'"),
     (["dataset=nope"], "unknown dataset 'nope'"),
     (["sweeps=table99"], "unknown sweep 'table99'"),
-    (["selector.nms.params.n=abc"], "expected an int like the default 1000, got str"),
+    (["selector.nms.params.n=abc"], "expected an int like the default 1000, got 'abc'"),
     (["seed=x"], "expected an int"),
     (["runner.num_cpuz=2"], "unknown config key 'runner.num_cpuz'"),
     (["detector.sift.params.nfeaturez=3"], "detector 'sift' has no parameter 'nfeaturez'; its parameters: "),
     (["detector=[sift]", "detector.sift.params.contrastThreshol=0.02"], "no parameter 'contrastThreshol'"),
     (["detector=[sift]", "detector.orb.params.nfeatures=5"], "detector 'orb' is not selected"),
-    (["descriptor.beblid.per_detector.sift.n_bitz=5"], "descriptor 'beblid' has no parameter 'n_bitz'"),
+    (["descriptor=[beblid]", "descriptor.beblid.per_detector.sift.n_bitz=5"],
+     "descriptor 'beblid' has no parameter 'n_bitz'"),
+    (["descriptor.beblid.per_detector.sift.n_bits=5"], "descriptor 'beblid' is not selected"),
+    (["dataset=[synthetic,csv]"], "dataset takes one option, not a list"),
     (["detector.nope.params.x=3"], "unknown detector 'nope'"),
-    (["runner.num_cpus=two"], "runner.num_cpus must be an integer in [1, inf) or null, got 'two'"),
+    (["runner.num_cpus=two"], "override 'runner.num_cpus=two': expected an int, got 'two'"),  # Hydra's type
+    (["runner.num_cpus=0"], "runner.num_cpus must be an integer in [1, inf) or null, got 0"),  # gtsweep's range
     (["runner.ray_log_level=loud"], "runner.ray_log_level must be one of debug, info, warning, error"),
     (["--cfg", "job", "runner.dashboard=maybe"], "expected a bool"),
 ])
@@ -118,9 +122,10 @@ def test_bad_overrides_fail_in_one_line(args, message, capsys):
 
 
 def test_good_overrides_pass():
-    cli.validate(cli.expand_all(["-m", "detector=all", "selector.nms.params.n=500", "seed=0,1",
-                                 "transform=[rotation,noise]", "transform.rotation.strengths=[0,90]",
-                                 "detector=glob(s*)", "+foo=1"]))
+    cli.prepare(["-m", "detector=all", "selector.nms.params.n=500", "seed=0,1", "transform=[rotation,noise]",
+                 "transform.rotation.strengths=[0,90]", "+foo=1"])
+    cli.prepare(["-m", "detector=glob(s*)"])
+    cli.prepare(["-m", "detector=[sift,orb],[sift]", "detector.sift.params.sigma=1.5"])  # sift in every job
 
 
 def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):

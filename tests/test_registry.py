@@ -133,15 +133,16 @@ def test_describe_does_not_import_detect():
     assert result.stdout.strip() == "False"
 
 
-def test_cli_passes_method_parameters_as_force_add_overrides():
+def test_cli_passes_method_parameters_to_hydra_as_they_are():
+    """A method's YAML composes onto its schema (its defaults in code): every parameter is in the config, so an
+    override needs no force-add, and Hydra refuses an unselected method's."""
     args = ["detector=[sift]", "detector.sift.params.contrastThreshold=0.02", "seed=1"]
-    assert cli.force_add(args) == ["detector=[sift]", "++detector.sift.params.contrastThreshold=0.02", "seed=1"]
+    assert cli.prepare(args) == args
     cfg = cli.compose_config(args)
     assert build_grid(cfg).detectors["sift"]["params"] == {**_sift().defaults, "contrastThreshold": 0.02}
-    # a preset's tuned detector is selected as "sift" too
-    assert cli.force_add(["sweeps=smoke", "detector.sift.params.sigma=1.5"])[-1].startswith("++")
+    assert cli.prepare(["sweeps=smoke", "detector.sift.params.sigma=1.5"])[-1] == "detector.sift.params.sigma=1.5"
     with pytest.raises(BadInput, match="detector 'orb' is not selected"):
-        cli.force_add(["detector=[sift],[sift,orb]", "detector.orb.params.nfeatures=5"])
+        cli.prepare(["-m", "detector=[sift],[sift,orb]", "detector.orb.params.nfeatures=5"])
 
 
 def test_hydra_overrides_are_placed_with_the_others():

@@ -1,6 +1,6 @@
 """The sequential reproduction end to end on a tiny data set with two cheap findings: round 1 runs both presets,
-the finding decided there is frozen, round 2 runs only the preset of the undecided one, at a larger count whose
-first pairs the keypoint cache already holds."""
+the finding decided there is frozen, round 2 runs only the cell the undecided one reads, at a larger count, and
+evaluates only its new pairs (the first ones' rows are kept from round 1)."""
 import math
 
 import pytest
@@ -9,12 +9,12 @@ from gtsweep.evaluation.statistics import Comparison
 from gtsweep.evaluation.verdicts import BEATS, Claim
 from gtsweep.orchestration.preset_runs import run_rounds
 from gtsweep.report.findings import Hypothesis
-from gtsweep.report.pools import pairings
+from gtsweep.report.pools import cells_where, pairings
 from gtsweep.report.samples import matrices
 from gtsweep.report.sequential import Sequential
 
 TINY = ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "runner.backend=serial",
-        "detector=[censure]", "descriptor=[brief]", "selector=[nms]"]
+        "detector=[censure]", "descriptor=[brief,orb]", "selector=[nms]"]
 
 
 def _clusters(data, kind):
@@ -36,7 +36,8 @@ def clear_with_six_pairs(data):
 
 
 FAKE = [Hypothesis("equal at once", "table5_absolute", "", "", "", "0.1", equal_at_once),
-        Hypothesis("clear with six pairs", "table4_incremental", "", "", "", "0.1", clear_with_six_pairs)]
+        Hypothesis("clear with six pairs", "table4_incremental", "", "", "", "0.1", clear_with_six_pairs,
+                   cells_where(descriptors=["brief"]))]
 
 
 @pytest.mark.slow
@@ -53,12 +54,20 @@ def test_rounds_run_only_the_presets_of_undecided_findings(tmp_path):
     # alpha spent: ln(1 + (e - 1) 2/3) of alpha at the first look, the rest at the second
     assert second.looks[0][2] == pytest.approx(0.05 * math.log(1 + (math.e - 1) * 2 / 3))
     assert second.spent == pytest.approx(0.05)
-    # round 2's detections of the first 2 pairs per texture came from the cache round 1 filled
-    assert runs[2]["cache_hit_rate"] > 0
+    # round 1: 2 cells x 2 textures x 2 pairs evaluated; round 2: only censure-brief (the cell the open finding
+    # reads), only its new pair per texture, the rows of the first 2 kept
+    assert [r["cells"] for r in runs] == [2, 2, 1] and runs[2]["extra_cells"] == 0
+    assert (runs[0]["items_evaluated"], runs[0]["items_reused"]) == (8, 0)
+    assert (runs[2]["items_evaluated"], runs[2]["items_reused"]) == (2, 4)
+    assert len(list((tmp_path / "round2" / "table4_incremental" / "cells").glob("*.json"))) == 2  # orb carried
     # the document: each finding with the round, count per texture and level of its verdict; compute spent
     from gtsweep.report.reproduce import write_document
 
     text = write_document(runs, "decide", tmp_path / "docs", 0.05, sequential).read_text()
     assert "| equal at once | equivalent | round 1, 2, " in text
     assert "| clear with six pairs | holds | round 2, 3, " in text
-    assert "counts per texture reached: table4_incremental 3, table5_absolute 2" in text and "Compute spent" in text
+    assert "newest round: table4_incremental 3, table5_absolute 2" in text and "Compute spent" in text
+    assert "| table4_incremental | 3: 1 cells; 2: 1 cells |" in text  # each cell at the count it last reached
+    assert "| round | preset | cells |" in text and "| 2 | table4_incremental | 1 |" in text
+    spent = sum(r["wall_s"] for r in runs if r["preset"] == "table4_incremental") / 60
+    assert f"| clear with six pairs | holds | round 2, 3, {second.nominal:.2g} | {spent:.1f} / " in text

@@ -32,8 +32,8 @@ def test_the_header_round_trips_into_the_parameter_table(tmp_path):
                    "defaults_few": 3, "stop": "no gain > 0.005 in the last 20 trials", "selector": "anms",
                    "fingerprint": "9e16", "values": {"delta": 2}}
     table = tuning_table(tmp_path).splitlines()
-    assert table[0].startswith("| detector | trials | stopped | selector | views < 100 KPs of 144")
-    assert table[2] == ("| mser | 28 | no gain > 0.005 in the last 20 trials | anms | 3 → 0 | 0.51 → 0.60 "
+    assert table[0].startswith("| detector | trials | stopped | selector | views < 100 KPs (defaults → tuned) of views")
+    assert table[2] == ("| mser | 28 | no gain > 0.005 in the last 20 trials | anms | 3 → 0 of 144 | 0.51 → 0.60 "
                         "| delta=2 |")
 
 
@@ -51,4 +51,4 @@ def test_an_older_header_gives_what_it_states(tmp_path):
         "# Data set fingerprint 47746f8e4d9c3386.\n"
         "sift:\n  params:\n    contrastThreshold: 0.0138\n  search_space:\n"
         "    contrastThreshold: {type: float, low: 0.005, high: 0.1}\n")
-    assert tuning_table(tmp_path).splitlines()[2] == "| sift | 10 | ? | ? | 0 | 0.72 | contrastThreshold=0.0138 |"
+    assert tuning_table(tmp_path).splitlines()[2] == "| sift | 10 | ? | ? | 0 of 216 | 0.72 | contrastThreshold=0.0138 |"

@@ -1,9 +1,10 @@
 """The command line on top of every layer: ``python -m gtsweep``.
 
-Before Hydra parses the command line, :mod:`gtsweep.cli.overrides` expands ``group=all``, checks every override
-(one line and exit code 2 for a mistake) and, with ``resume=true``, reopens the newest earlier run; the output
-directory is checked (writable, not in use by another run) before Hydra writes anything; then the Hydra
-application :mod:`gtsweep.cli.app` runs the job. Only the overrides are touched: Hydra's own flags work anywhere.
+Before Hydra runs the job, :mod:`gtsweep.cli.overrides` expands ``group=all``, has Hydra compose every job once
+(:mod:`gtsweep.cli.preflight`: one line and exit code 2 for a mistake) and, with ``resume=true``, reopens the
+newest earlier run; the output directory is checked (writable, not in use by another run) before Hydra writes
+anything; then the Hydra application :mod:`gtsweep.cli.app` runs the job. Only the overrides are touched: Hydra's
+own flags work anywhere.
 """
 from __future__ import annotations
 

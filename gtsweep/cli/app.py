@@ -28,6 +28,7 @@ from gtsweep.cli.lifecycle import (
 )
 from gtsweep.cli.watchdog import watched
 from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
+from gtsweep.cli.schemas import register_schemas
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import GtsweepError
@@ -43,6 +44,7 @@ from gtsweep.report.scale import scale_from_config
 log = logging.getLogger(__name__)
 register_resolvers()  # also in processes that only import this module (Hydra's joblib launcher workers)
 register_sources()
+register_schemas()  # the method and run-setting schemas the configs compose onto
 
 
 def hydra_main() -> None:

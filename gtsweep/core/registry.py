@@ -3,8 +3,10 @@ matchers, pose estimators).
 
 A :class:`Method` is a name, the label the survey prints, a factory and the factory's default parameters, declared
 in code; a family subclasses it to add its capabilities (a detector's orientation, a descriptor's norm). A method's
-YAML holds only what a user overrides: :meth:`Method.params` merges it onto the defaults strictly, as glue-factory
-merges a config onto a model's ``default_conf`` — an unknown parameter or a value of the wrong type is a one-line
+YAML holds only what a user overrides; Hydra merges it onto the defaults while composing (the CLI registers the
+defaults as schemas). :meth:`Method.params` is the strict check every caller goes through (a composed config's full
+parameters pass unchanged; a script's partial ones are merged onto the defaults, as glue-factory merges a config
+onto a model's ``default_conf``): an unknown parameter or a value of the wrong type is a one-line
 :class:`~gtsweep.core.errors.BadInput`, never a silent extra keyword. A :class:`Registry` holds one family, with
 one lookup (:meth:`Registry.get`) that lists the valid names when a name is unknown. A method can also be declared
 in YAML alone (:meth:`Registry.declare`): a ``factory`` (dotted path), capabilities, and ``params`` as defaults.

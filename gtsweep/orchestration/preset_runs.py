@@ -2,14 +2,19 @@
 
 Each preset runs as its own ``python -m gtsweep`` process; its wall time, peak memory (resident memory of its
 whole process tree, sampled), keypoint cache hit rate and number of MLflow runs are recorded. In rounds
-(:data:`ROUNDS`), round k runs only the presets that ``needed`` (the caller's judgement of which findings are
-still undecided, see :mod:`gtsweep.report.sequential`) names, at round k's counts per texture. The keypoint cache
-is shared by every round, and a data set's first n views are the same for any larger count
-(``tests/test_survey.py`` checks it), so a round pays detection only for its new images.
+(:data:`ROUNDS`), round k runs only the cells that ``needed`` (the caller's judgement of which findings are
+still undecided and which cells they read, see :mod:`gtsweep.report.sequential`) names, at round k's counts per
+texture: a preset's grid is cut to them with ``pairings``, ``++selector_for`` and ``transform`` overrides
+(:func:`restriction`). Each round's run of a preset starts from a copy of its previous run's cells (:func:`carry`):
+the cells it does not run stay at the count they last reached, and the cells it runs keep the rows of the images
+and pairs they already evaluated (a data set's first n views are the same for any larger count,
+``tests/test_survey.py``; :mod:`gtsweep.orchestration.view_reuse`), so a round evaluates only its new images and
+pairs, and only for the cells still needed. The keypoint cache is shared by every round.
 """
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -81,7 +86,8 @@ def run_preset(preset: str, overrides: list[str], work: Path, uri: str, cache: P
     lookups = record["cache_hits"] + record["cache_misses"]
     return {"preset": preset, "output": out, "wall_s": seconds, "peak_mb": memory.total / 2**20,
             "cache_hit_rate": record["cache_hits"] / lookups if lookups else float("nan"),
-            "mlflow_runs": 1 + _child_runs(uri, parent), "cells": record["cells"]}
+            "mlflow_runs": 1 + _child_runs(uri, parent), "cells": record["cells"],
+            "items_evaluated": record.get("items_evaluated"), "items_reused": record.get("items_reused")}
 
 
 def _child_runs(uri: str, parent: str) -> int:
@@ -103,45 +109,107 @@ def run_fixed(presets, overrides: list[str], work: Path, log=print) -> list[dict
     return results
 
 
-def run_rounds(presets, needed: Callable[[int, dict[str, dict]], set[str]], work: Path, rounds=ROUNDS,
-               extra: list[str] = (), log=print) -> list[dict]:
-    """Rounds of growing counts: round 0 runs every preset; after round k, ``needed(k, latest)`` (``latest``: each
-    preset's newest measurements) names the presets round k + 1 runs; stops when it names none or after the last
-    round. Returns every run's measurements with its round and counts."""
+def run_rounds(presets, needed: Callable[[int, dict[str, dict]], dict[str, list[dict] | None]], work: Path,
+               rounds=ROUNDS, extra: list[str] = (), log=print) -> list[dict]:
+    """Rounds of growing counts: round 0 runs every cell of every preset; after round k, ``needed(k, latest)``
+    (``latest``: each preset's newest measurements) names the cells round k + 1 runs, per preset the methods of
+    each cell (None: all of them; a set of preset names: all of theirs); stops when it names none or after the
+    last round. Returns every run's measurements with its round, counts, cells asked for and extra cells run."""
     uri, cache = f"sqlite:///{work / 'mlflow.db'}", work / "cache"
-    runs, latest, wanted = [], {}, set(presets)
+    runs, latest, wanted = [], {}, dict.fromkeys(presets)
     for k, counts_per_texture in enumerate(rounds):
         if not wanted:
             break
         log(f"gtsweep.reproduce: round {k + 1} ({counts_per_texture} per texture): {', '.join(sorted(wanted))}")
         for preset in [p for p in presets if p in wanted]:
-            overrides = [*round_overrides(counts_per_texture), *extra, *PRESET_OVERRIDES.get(preset, [])]
+            out, cut, extra_cells = work / f"round{k + 1}" / preset, [], 0
+            if preset in latest:
+                carry(latest[preset]["output"], out)
+                if wanted[preset] is not None:
+                    cut, extra_cells = restriction(cells_of(latest[preset]["output"]), wanted[preset])
+            overrides = [*round_overrides(counts_per_texture), *extra, *PRESET_OVERRIDES.get(preset, []), *cut]
             result = run_preset(preset, overrides, work / f"round{k + 1}", uri, cache)
-            result.update(round=k + 1, counts=list(counts_per_texture))
+            result.update(round=k + 1, counts=list(counts_per_texture), extra_cells=extra_cells,
+                          cells_needed=result["cells"] - extra_cells)
             runs.append(result)
             latest[preset] = result
             _report(result, log)
-        wanted = set(needed(k, latest)) & set(presets)
+        asked = needed(k, latest)
+        asked = asked if isinstance(asked, dict) else dict.fromkeys(asked)
+        wanted = {p: cells for p, cells in asked.items() if p in presets and cells != []}
     return runs
 
 
+def carry(previous: Path, out: Path) -> None:
+    """Start ``out`` from a copy of a previous run's cells (rows, summaries and what each cell's rows cover)."""
+    for part in ("cells", "reuse"):
+        if (Path(previous) / part).is_dir():
+            shutil.copytree(Path(previous) / part, out / part, dirs_exist_ok=True)
+
+
+def cells_of(output: Path) -> list[dict]:
+    """The methods of every cell of a sweep's output directory."""
+    return [json.loads(p.read_text())["methods"] for p in sorted(Path(output).glob("cells/*.json"))]
+
+
+def _identity(methods: dict) -> tuple:
+    return tuple(methods.get(k) for k in ("detector", "selector", "descriptor", "transform", "matcher", "estimator"))
+
+
+def restriction(available: list[dict], needed: list[dict]) -> tuple[list[str], int]:
+    """Overrides that cut a preset's grid (its cells ``available``) to the cells ``needed``, and how many cells
+    beyond those the cut grid still runs: ``transform=[...]`` for the transforms, ``pairings=[...]`` for the
+    (detector, descriptor) pairs, ``++selector_for={...}`` for a detector that needs one of several selectors (a
+    detector needing several but not all of its selectors, or a detection grid's detector needed for no cell, keeps
+    them: the extra cells)."""
+    if {_identity(c) for c in available} <= {_identity(c) for c in needed}:
+        return [], 0
+    transforms = list(dict.fromkeys(c["transform"] for c in needed))
+    pose = any(c.get("descriptor") for c in available)
+    pairs = list(dict.fromkeys((c["detector"], c["descriptor"]) for c in needed if c.get("descriptor")))
+    ran, wanted = {}, {}
+    for group, cells in ((ran, available), (wanted, needed)):
+        for c in cells:
+            group.setdefault(c["detector"], set()).add(c["selector"])
+    pins = {d: next(iter(s)) for d, s in wanted.items() if len(s) == 1 and ran[d] != s}
+    overrides = []
+    if set(transforms) != {c["transform"] for c in available}:
+        overrides.append(f"transform=[{','.join(transforms)}]")
+    if pose and set(pairs) != {(c["detector"], c["descriptor"]) for c in available if c.get("descriptor")}:
+        overrides.append(f"pairings=[{','.join(f'[{d},{s}]' for d, s in pairs)}]")
+    if pins:
+        overrides.append(f"++selector_for={{{','.join(f'{d}:{s}' for d, s in sorted(pins.items()))}}}")
+    runs = [c for c in available if c["transform"] in transforms and c["selector"] == pins.get(c["detector"],
+            c["selector"]) and (not pose or (c["detector"], c.get("descriptor")) in set(pairs))]
+    return overrides, len({_identity(c) for c in runs} - {_identity(c) for c in needed})
+
+
 def _report(r: dict, log) -> None:
-    log(f"  {r['preset']}: {r['cells']} cells, {r['wall_s']:.0f} s, peak {r['peak_mb']:.0f} MB, "
+    items = f", {r['items_evaluated']} (cell, image or pair) evaluated, {r['items_reused']} kept" \
+        if r.get("items_evaluated") is not None else ""
+    log(f"  {r['preset']}: {r['cells']} cells{items}, {r['wall_s']:.0f} s, peak {r['peak_mb']:.0f} MB, "
         f"cache hit rate {r['cache_hit_rate']:.2f}, {r['mlflow_runs']} MLflow runs")
 
 
-def full_protocol_estimate(runs: list[dict]) -> float:
-    """Seconds the fixed full protocol would take, from each preset's largest run scaled linearly in its count
-    per texture (evaluation cost grows with the number of images; a rough estimate)."""
-    largest = {}
+def full_protocol_estimate(runs: list[dict], preset: str | None = None) -> float:
+    """Seconds the fixed full protocol would take (of one ``preset``, or of all), from each preset's first run
+    (every cell and image evaluated, nothing reused) scaled linearly in its count per texture (evaluation cost
+    grows with the number of images; a rough estimate: the fixed costs of a run are scaled too)."""
+    first = {}
     for r in runs:
-        if r["preset"] not in largest or r.get("round", 0) > largest[r["preset"]].get("round", 0):
-            largest[r["preset"]] = r
+        if r["preset"] not in first or r.get("round", 0) < first[r["preset"]].get("round", 0):
+            first[r["preset"]] = r
     total = 0.0
-    for preset, r in largest.items():
-        n = counts(preset, r.get("counts", FULL))
-        total += r["wall_s"] * (1 if preset == "table2_selectors" else FULL[KIND[preset]] / n)
+    for name, r in first.items():
+        if preset is None or name == preset:
+            n = counts(name, r.get("counts", FULL))
+            total += r["wall_s"] * (1 if name == "table2_selectors" else FULL[KIND[name]] / n)
     return total
+
+
+def spent(runs: list[dict], preset: str, until: int) -> float:
+    """Seconds ``preset``'s runs took up to and including round ``until``."""
+    return sum(r["wall_s"] for r in runs if r["preset"] == preset and r.get("round", 0) <= until)
 
 
 def save(record: Path, content: dict) -> None:

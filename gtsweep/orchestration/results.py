@@ -4,10 +4,13 @@ Layout of a sweep's output directory::
 
     cells/<cell>.csv     per-view rows of one cell
     cells/<cell>.json    the cell's summary; written last, so its presence marks the cell complete
+    reuse/<cell>.json    which images or pairs the cell's rows cover, for reuse on a grown data set
+                         (:mod:`gtsweep.orchestration.view_reuse`)
     results.csv          one row per cell (written when the sweep ends)
 
 A cell whose ``.json`` exists with the same configuration hash and did not fail is complete: a resumed sweep
-keeps it (a failed cell is computed again).
+keeps it (a failed cell is computed again). A cell whose hash changed only because the data set grew keeps the
+rows of the images or pairs it already evaluated (:mod:`gtsweep.orchestration.view_reuse`).
 """
 from __future__ import annotations
 
@@ -54,6 +57,15 @@ def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
     return summary
 
 
+def stored_rows(rows: pd.DataFrame, summary: dict) -> pd.DataFrame:
+    """A cell's rows as its CSV holds them: with the derived metrics and a ``transform`` column."""
+    rows = schema.with_derived(rows, summary.get("experiment"))
+    transform = (summary.get("methods") or {}).get("transform")
+    if transform and "transform" not in rows and "texture" in rows:  # each row names its transform
+        rows.insert(rows.columns.get_loc("texture") + 1, "transform", transform)
+    return rows
+
+
 def _json_safe(value):
     if isinstance(value, float) and not math.isfinite(value):
         return None
@@ -80,19 +92,33 @@ class ResultStore:
             return None
         return summary if summary.get("hash") == cell_hash and summary.get("status") != "error" else None
 
-    def write_cell(self, key: str, summary: dict, rows: pd.DataFrame | None) -> None:
-        """Write a cell's rows (with the derived metrics), then its summary (the completion marker)."""
+    def write_cell(self, key: str, summary: dict, rows: pd.DataFrame | None, coverage: dict | None = None) -> None:
+        """Write a cell's rows (with the derived metrics) and what they cover (``coverage``, for reuse), then its
+        summary (the completion marker)."""
         if rows is not None:
-            rows = schema.with_derived(rows, summary.get("experiment"))
-            transform = (summary.get("methods") or {}).get("transform")
-            if transform and "transform" not in rows and "texture" in rows:  # each row names its transform
-                rows.insert(rows.columns.get_loc("texture") + 1, "transform", transform)
+            rows = stored_rows(rows, summary)
             write_atomically(self.cells_dir / f"{key}.csv", rows.to_csv(index=False))
+        if coverage is not None:
+            write_atomically(self.reuse_dir / f"{key}.json", json.dumps(coverage, sort_keys=True))
         write_atomically(self.cells_dir / f"{key}.json", json.dumps(_json_safe(summary), indent=1, sort_keys=True))
 
+    @property
+    def reuse_dir(self) -> Path:
+        return self.directory / "reuse"
+
     def rows(self, key: str) -> pd.DataFrame:
+        """A cell's stored rows (pandas reads every float back exactly as written)."""
         path = self.cells_dir / f"{key}.csv"
         return pd.read_csv(path) if path.exists() else pd.DataFrame()
+
+    def coverage(self, key: str) -> dict | None:
+        """What a finished, evaluated (status ok) cell's rows cover (:meth:`write_cell`), else None."""
+        try:
+            summary = json.loads((self.cells_dir / f"{key}.json").read_text())
+            coverage = json.loads((self.reuse_dir / f"{key}.json").read_text())
+        except (FileNotFoundError, ValueError):
+            return None
+        return coverage if summary.get("status") == "ok" and (self.cells_dir / f"{key}.csv").exists() else None
 
     def write_table(self, summaries: list[dict]) -> Path:
         """``results.csv``: one row per cell with its methods, status and mean metrics."""

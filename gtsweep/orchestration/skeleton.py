@@ -11,7 +11,7 @@ import json
 import logging
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Mapping
 
@@ -28,6 +28,7 @@ from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
 from gtsweep.orchestration.runner import RunStats, plan, run
 from gtsweep.orchestration.shards import load_shards
+from gtsweep.orchestration.view_reuse import ViewReuse
 
 #: Called as ``hook(cell, summary, rows)`` for every cell as it finishes, and for cells kept from an earlier run
 #: (rows None for those and for NA cells).
@@ -75,6 +76,9 @@ class CellWork:
     build_grid: Callable[[Mapping], object]
     load_data: Callable[[Mapping, object], object]
     evaluate: Callable[..., RunStats]
+    #: ``reuse(store, grid, data, seed)``: a :class:`~gtsweep.orchestration.view_reuse.ViewReuse` that lets a
+    #: cell keep the rows of the items it already evaluated on a smaller data set (None: whole cells only).
+    reuse: Callable[..., ViewReuse] | None = None
 
 
 def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
@@ -104,11 +108,15 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         on_start(grid, data.fingerprint)
     summaries: dict[str, dict] = {}
     hashes = {cell.key: grid.cell_hash(cell, data.fingerprint, seed) for cell in grid.cells}
+    reuse = work.reuse(store, grid, data, seed) if work.reuse is not None else None
 
     def finish(cell, outcome: Mapping) -> None:
+        if reuse is not None:
+            outcome = reuse.complete(cell, outcome)
         summary = cell_summary(cell, hashes[cell.key], outcome, grid.experiment["name"])
         rows = outcome.get("rows")
-        store.write_cell(cell.key, summary, rows)
+        covered = reuse.coverage(cell) if reuse is not None and summary["status"] == "ok" else None
+        store.write_cell(cell.key, summary, rows, covered)
         summaries[cell.key] = summary
         log.info("cell %s: %s%s", cell.key, summary["status"], f" ({summary['reason']})" if summary.get("reason")
                  else "")
@@ -135,13 +143,24 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         for cell in not_applicable:
             finish(cell, {"na": cell.na_reason})
 
-    stats = RunStats()
-    if pending:
-        if backend(runner_cfg) == "ray":
-            progress.phase("start Ray")
-        stats = work.evaluate(grid, data, pending, runner_cfg, seed, cache_dir, finish, start_evaluating)
-    else:
-        start_evaluating()
+    ready, groups = reuse.plan(pending) if reuse is not None else ([], [(data, pending)] if pending else [])
+    if reuse is not None:
+        log.info("view reuse: %d (cell, image or pair) rows kept from an earlier run, %d to evaluate",
+                 reuse.reused, reuse.evaluated)
+    stats, started = RunStats(), []
+
+    def started_once() -> None:
+        if not started:
+            started.append(True)
+            start_evaluating()
+
+    if groups and backend(runner_cfg) == "ray":
+        progress.phase("start Ray")
+    for part, cells in groups:  # one group per set of items still to evaluate (usually one)
+        stats = _added(stats, work.evaluate(grid, part, cells, runner_cfg, seed, cache_dir, finish, started_once))
+    started_once()
+    for cell in ready:  # every item's rows kept: nothing to evaluate
+        finish(cell, {"rows": pd.DataFrame()})
     if stats.cache_write_errors:
         cache_note = f"{cache_note} ({stats.cache_write_errors} task(s) could not write to it and went on without)"
         log.warning("%d task(s) could not write to the keypoint cache %s; they ran without it",
@@ -153,7 +172,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
                            skipped_items=list(getattr(data, "skipped", ())), cache=cache_note)
     outcome.table = store.write_table(ordered)
-    write_run_record(outcome, data)
+    write_run_record(outcome, data, reuse)
     return outcome
 
 
@@ -173,6 +192,10 @@ class PairData:
         return list(getattr(self.dataset, "skipped", []))
 
 
+def _added(a: RunStats, b: RunStats) -> RunStats:
+    return RunStats(**{f.name: getattr(a, f.name) + getattr(b, f.name) for f in fields(RunStats)})
+
+
 def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
     dataset = load_dataset(cfg["dataset"])
     return PairData(dataset, dataset.fingerprint())
@@ -180,19 +203,24 @@ def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
 
 def _evaluate_pairs(grid: Grid, data: PairData, cells: list, runner_cfg: dict, seed: int, cache_dir, finish,
                     on_started) -> RunStats:
-    # Load (and so check) every image before the first result file is written: bad data stops the run clean.
-    shards = load_shards(data.dataset, grid.transforms, int(runner_cfg.get("shard_size", 4)))
+    # Load (and so check) every image the cells read before the first result file is written: bad data stops the
+    # run clean.
+    transforms = {name: grid.transforms[name] for name in sorted({cell.transform for cell in cells})}
+    shards = load_shards(data.dataset, transforms, int(runner_cfg.get("shard_size", 4)))
     jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, {cell.key for cell in cells})
     return run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish, on_started=on_started)
 
 
 #: The pair experiments (detection, matching, pose): detector x selector (x descriptor x matcher x estimator) x
 #: transform on images and image pairs.
-PAIRS = CellWork(build_grid, _load_pairs, _evaluate_pairs)
+PAIRS = CellWork(build_grid, _load_pairs, _evaluate_pairs,
+                 reuse=lambda store, grid, data, seed: ViewReuse(store, grid, data.dataset, seed,
+                                                                 lambda part: PairData(part, data.fingerprint)))
 
 
-def write_run_record(outcome: SweepOutcome, data) -> None:
-    """``run.json``: the data set, cache and task counts, wall time."""
+def write_run_record(outcome: SweepOutcome, data, reuse: ViewReuse | None = None) -> None:
+    """``run.json``: the data set, cache and task counts, (cell, image or pair) rows kept and evaluated, wall
+    time."""
     record = {
         "dataset": data.name,
         "dataset_fingerprint": outcome.dataset_fingerprint,
@@ -208,4 +236,6 @@ def write_run_record(outcome: SweepOutcome, data) -> None:
         "pairing_tasks": outcome.stats.pairing_tasks,
         "seconds": round(outcome.seconds, 3),
     }
+    if reuse is not None:  # (cell, image or pair) combinations: rows kept from an earlier run, evaluated now
+        record["items_reused"], record["items_evaluated"] = reuse.reused, reuse.evaluated
     write_atomically(outcome.output_dir / "run.json", json.dumps(record, indent=1))

@@ -24,9 +24,9 @@ import pandas as pd
 from gtsweep.evaluation import statistics, verdicts
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.evaluation.verdicts import AMONG, BEATS, BELOW, WITHIN, Claim
-from gtsweep.report.pools import (ORIENTED, PLAIN_DESCRIPTORS, SURVEY_VARIANT, UNORIENTED, Data, best,
-                                  by_count, detection_cells, keeps_all, median_entry, pairings, survey_selector,
-                                  table3)
+from gtsweep.report.pools import (EVERY_CELL, ORIENTED, PLAIN_DESCRIPTORS, SURVEY_VARIANT, UNORIENTED, Data, best,
+                                  by_count, cells_where, detection_cells, keeps_all, median_entry, pairings,
+                                  survey_selector, table3)
 from gtsweep.report.samples import against, compare, rate_within
 
 NOT_MEASURED, NOT_TESTABLE = "not measured", "not testable"
@@ -50,6 +50,10 @@ class Hypothesis:
     test: str
     margin: str  # the margin and its source
     build: object  # Data -> list of Claim (or point-value strings when not testable)
+    #: the preset's cells it reads, every candidate of a rival or "best" picked from the data included (a frame
+    #: of the preset's cells -> a mask; :func:`~gtsweep.report.pools.cells_where`): a round of ``--size decide``
+    #: runs only the cells of the findings still undecided
+    needs: object = EVERY_CELL
 
 
 @dataclass
@@ -230,6 +234,8 @@ def _by_pairing(cells: pd.DataFrame):
     return [(f"{d}-{s}", g) for (d, s), g in cells.groupby(["detector", "descriptor"])] if len(cells) else []
 
 
+#: Table 3's findings pick their rival (best, median, lowest) among every detector with its survey selector.
+_TABLE3 = cells_where(selectors=("survey",), pose=False)
 _REP = f"±{REPEATABILITY_MARGIN} (tables' two decimals; ties bolded)"
 _SUC = f"±{SUCCESS_MARGIN} (\"similarly well\": 0.90 vs 0.93)"
 FINDINGS = [
@@ -237,60 +243,68 @@ FINDINGS = [
                "\"We find MSER to be the only detector that performs best with ANMS. For all other detectors, we "
                "use NMS\" (4.1)", "per detector, its selector (ANMS for MSER) vs each other selector",
                "paired t over images, rank claim (ties within the margin support it)", _REP,
-               nms_beats_other_selectors),
+               nms_beats_other_selectors, cells_where(pose=False)),
     Hypothesis("MSER, FAST, AGAST and BRISK repeat better without selection (Table 2)", "table2_selectors",
                "\"Together with FAST, AGAST, and BRISK, MSER has significantly better repeatability without "
                "selection\" (4.1)", "per detector, no selection vs its survey selector",
-               "paired t over images, superiority", _REP, selection_hurts_dense_detectors),
+               "paired t over images, superiority", _REP, selection_hurts_dense_detectors,
+               cells_where(detectors=("mser", "fast", "agast", "brisk"), selectors=("none", "survey"), pose=False)),
     Hypothesis("SIFT, AKAZE and SURF have the best repeatability (Table 3)", "table3_detectors",
                "\"SIFT, AKAZE, and SURF have with 83% to 84% the best repeatability\" (4.1)",
                "each named detector vs the best other detector (picked on half 0)",
-               "paired t over images on half 1, rank claim", _REP + "; the named span 0.01", best_repeatability),
+               "paired t over images on half 1, rank claim", _REP + "; the named span 0.01", best_repeatability,
+               _TABLE3),
     Hypothesis("SIFT's ambiguity is large, about 1.5 (Table 3)", "table3_detectors",
                "\"SIFT has a large ambiguity score of 1.5\" (4.1)",
                "SIFT vs the median other detector (picked on half 0); SIFT vs 1.5",
                "paired t over images (half 1), superiority; t test, TOST vs 1.5",
-               f"±{AMBIGUITY_MARGIN} (\"1.5\": one decimal)", sift_ambiguous),
+               f"±{AMBIGUITY_MARGIN} (\"1.5\": one decimal)", sift_ambiguous, _TABLE3),
     Hypothesis("SURF, CenSurE and AKAZE have among the lowest ambiguity (Table 3)", "table3_detectors",
                "\"They have among the best repeatability, and ambiguity scores\" (4.1)",
                "each named detector vs the lowest other detector (picked on half 0)",
                "paired t over images on half 1, rank claim (ambiguity >= 1: ties at the floor support it)",
-               f"±{AMBIGUITY_MARGIN} (ambiguity stated to one decimal)", low_ambiguity_detectors),
+               f"±{AMBIGUITY_MARGIN} (ambiguity stated to one decimal)", low_ambiguity_detectors, _TABLE3),
     Hypothesis("CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)", "table4_incremental",
                "\"The best performance for incremental localization of 93% ... ORB on CenSurE or MSD keypoints. "
                "BRIEF and LATCH perform similarly well with 90%\" (5.2)",
                "best CenSurE-ORB/BRIEF/LATCH vs best other pairing (both picked on half 0)",
-               "paired t over pairs on half 1, rank claim", _SUC, censure_best_incremental),
+               "paired t over pairs on half 1, rank claim", _SUC, censure_best_incremental,
+               cells_where(transforms=["incremental"], pose=True)),
     Hypothesis("Unoriented detectors with ORB/BRIEF/LATCH/SIFT collapse on absolute pairs (Table 5)",
                "table5_absolute", "\"In these cases pose estimation success rate drops to about 10% to 15%\" (5.2)",
                "success of unoriented detectors with ORB/BRIEF/LATCH/SIFT, pooled, vs the band 0.10-0.15",
                "design-effect Wilson interval (1 - 2 alpha) inside / outside the band",
-               "[0.075, 0.175] (\"about\": half a 5 % step)", unoriented_collapse_absolute),
+               "[0.075, 0.175] (\"about\": half a 5 % step)", unoriented_collapse_absolute,
+               cells_where(transforms=["absolute"], detectors=UNORIENTED, descriptors=PLAIN_DESCRIPTORS, pose=True)),
     Hypothesis("Detectors with orientation outperform the others on absolute pairs (Table 5)", "table5_absolute",
                "\"Detectors that provide orientation information (SIFT, SURF, AKAZE, ORB, BRISK, and LIFT) "
                "outperform the other detectors\" (5.2)",
                "best pairing per detector (picked on half 0), oriented pool vs unoriented pool",
-               "paired t over pairs on half 1, superiority", _SUC, oriented_detectors_win_absolute),
+               "paired t over pairs on half 1, superiority", _SUC, oriented_detectors_win_absolute,
+               cells_where(transforms=["absolute"], detectors=ORIENTED | UNORIENTED, pose=True)),
     Hypothesis("SIFT is best under severe synthetic transforms (Table 6)", "table6_pairings",
                "\"SIFT outperforms the other feature extraction pipelines\"; \"other pairings ... perform "
                "similarly well\" (5.2, 6)", "SIFT-SIFT vs the best other pairing (picked on half 0)",
-               "paired t over images on half 1, rank claim", _SUC, sift_best_on_synthetic),
+               "paired t over images on half 1, rank claim", _SUC, sift_best_on_synthetic,
+               cells_where(transforms=SYNTHETIC, pose=True)),
     Hypothesis("Precision, not the number of correct matches, tracks pose success (Table 6)", "table6_pairings",
                "\"We find precision to correlate with the pose estimation success rate, while this relation is "
                "not that clear for the number of correct matches\" (5.2)",
                "rho(precision, success) - rho(correct matches, success) over pairings",
                "bootstrap interval over pairings (1 - 2 alpha), superiority",
-               "±1/60 (one adjacent rank swap among the survey's 9 pairings)", precision_tracks_success),
+               "±1/60 (one adjacent rank swap among the survey's 9 pairings)", precision_tracks_success,
+               cells_where(transforms=SYNTHETIC, pose=True)),
     Hypothesis("Success stops growing beyond ~300-500 reference features for the best pairings (Table 7)",
                "table7_reference_features",
                "\"pairings like CenSurE-ORB, CenSurE-LATCH, and SIFT-SIFT reach values close to their best "
                "performance at 300 features already. Others ... should not be used with less than 500\" (5.2)",
                "per pairing, success at the largest count minus at 500", "paired t over pairs, below the margin",
-               f"{SUCCESS_MARGIN} (\"close to their best\": 0.89 vs 0.92, 0.82 vs 0.84)", success_saturates),
+               f"{SUCCESS_MARGIN} (\"close to their best\": 0.89 vs 0.92, 0.82 vs 0.84)", success_saturates,
+               cells_where(transforms=["incremental"], pose=True)),
     Hypothesis("Success is low with 100 or fewer reference features (Table 7)", "table7_reference_features",
                "\"localization performance is low for 100 or less reference keypoints\" (5.2)",
                "per pairing, success at 100 vs at 1000 reference features", "paired t over pairs, superiority",
-               _SUC, few_references_fail),
+               _SUC, few_references_fail, cells_where(transforms=["incremental"], pose=True)),
 ]
 
 

@@ -107,3 +107,31 @@ def by_count(data: Data) -> tuple[pd.DataFrame, list[float]]:
         return pd.DataFrame(), []
     cells = cells[cells["by_reference_count"].notna()]
     return cells, sorted({float(c) for r in cells["by_reference_count"] for c in r})
+
+
+def cells_where(transforms=None, detectors=None, descriptors=None, selectors=None, pose: bool | None = None):
+    """What a finding needs of its preset's cells: a function of the preset's cells (a frame with the method
+    columns) giving the rows it reads, every candidate a rival or "best" may be picked from included.
+    ``selectors``: names, or ``"survey"`` for each detector's survey selector (:func:`survey_selector`) among
+    those the preset ran; ``pose``: pose cells only (True), detection cells only (False)."""
+
+    def needs(cells: pd.DataFrame) -> pd.Series:
+        keep = pd.Series(True, index=cells.index)
+        described = cells["descriptor"].notna() if "descriptor" in cells else pd.Series(False, index=cells.index)
+        if pose is not None:
+            keep &= described if pose else ~described
+        for column, names in (("transform", transforms), ("detector", detectors), ("descriptor", descriptors)):
+            if names is not None:
+                keep &= cells[column].isin(list(names)) if column in cells else False
+        if selectors is not None:
+            named = [s for s in selectors if s != "survey"]
+            ran = cells.groupby("detector")["selector"].agg(lambda s: dict.fromkeys(s))
+            own = cells["detector"].map(lambda d: survey_selector(d, ran[d]))
+            keep &= cells["selector"].isin(named) | (("survey" in selectors) & (cells["selector"] == own))
+        return keep
+
+    return needs
+
+
+#: A finding that reads every cell of its preset.
+EVERY_CELL = cells_where()

@@ -18,6 +18,8 @@ import shutil
 import sys
 from pathlib import Path
 
+import pandas as pd
+
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
 from gtsweep.orchestration import preset_runs as runs
@@ -26,6 +28,7 @@ from gtsweep.report.samples import load_views
 from gtsweep.report.scale import annotate, load_scale
 from gtsweep.report.sequential import Sequential
 from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
+from gtsweep.report.tuning import tuning_table
 
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])
@@ -86,10 +89,12 @@ def _size_line(size: str, results: list[dict]) -> str:
     reached = ", ".join(f"{r['preset']} {runs.counts(r['preset'], r['counts'])}" for r in _latest(results))
     spent, full = sum(r["wall_s"] for r in results), runs.full_protocol_estimate(results)
     return (f"size `decide` (sequential rounds {', '.join('/'.join(map(str, c)) for c in runs.ROUNDS)} synthetic "
-            f"images / incremental / absolute pairs per texture, each round only for the presets of undecided "
-            f"findings); counts per texture reached: {reached}. Compute spent: {spent / 3600:.1f} h against an "
-            f"estimated {full / 3600:.0f} h for the fixed full protocol (each preset's largest run scaled "
-            f"linearly to 100 per texture)")
+            f"images / incremental / absolute pairs per texture, each round only for the cells the undecided "
+            f"findings read, each cell evaluating only the images or pairs it had not evaluated yet); counts per "
+            f"texture of each preset's newest round: {reached} (each cell's own count: \"Counts per cell\" below). "
+            f"Compute spent: {spent / 3600:.1f} h against an estimated {full / 3600:.1f} h for the fixed full "
+            f"protocol (each preset's first round, every cell and image evaluated, scaled linearly to 100 per "
+            f"texture)")
 
 
 def write_document(results: list[dict], size: str, docs: Path, alpha: float = ALPHA,
@@ -110,23 +115,31 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
              f"on this machine ({os.cpu_count()} cores): {sum(r['wall_s'] for r in results) / 60:.0f} min for all "
              "runs. Cells read `ours [low, high] (paper)`: the ends of our 95 % interval over images (a t interval; "
              "a design-effect Wilson interval for a rate); NA = not applicable.",
-             "", scale.line(), "", *([tuned_line(tuning), ""] if tuning else []),
+             "", scale.line(), "", *([tuned_line(tuning), "", tuning_table(TUNED), ""] if tuning else []),
              ("| round " if rounds else "") + "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate "
-             "| MLflow runs |", ("|---" if rounds else "") + "|---|---|---|---|---|---|"]
-    lines += [(f"| {r['round']} " if rounds else "") + f"| {r['preset']} | {r['cells']} | {r['wall_s']:.0f} | "
-              f"{r['peak_mb']:.0f} | {r['cache_hit_rate']:.2f} | {r['mlflow_runs']} |" for r in results]
+             "| MLflow runs |" + (" images or pairs evaluated (kept) |" if rounds else ""),
+             ("|---" if rounds else "") + "|---|---|---|---|---|---|" + ("---|" if rounds else "")]
+    lines += [(f"| {r['round']} " if rounds else "") + f"| {r['preset']} | {_cells(r)} | {r['wall_s']:.0f} | "
+              f"{r['peak_mb']:.0f} | {r['cache_hit_rate']:.2f} | {r['mlflow_runs']} |" + (_items(r) if rounds else "")
+              for r in results]
     lines += [("| " if rounds else "") + f"| all | {sum(r['cells'] for r in results)} | "
               f"{sum(r['wall_s'] for r in results):.0f} | {max((r['peak_mb'] for r in results), default=0):.0f} | "
-              f"| {sum(r['mlflow_runs'] for r in results)} |", "",
+              f"| {sum(r['mlflow_runs'] for r in results)} |" + (" |" if rounds else ""), "",
               "Wall time and peak resident memory (sampled every 0.5 s, the whole process tree: driver and Ray "
               f"workers) of each preset's own `python -m gtsweep` process on this machine ({os.cpu_count()} cores); "
               "cache hit rate: share of its keypoint detections found in the cache shared by the presets (and "
-              "rounds); MLflow runs: the preset's parent run plus one child run per cell."]
-    summaries, views, ties = {}, {}, []
+              "rounds); MLflow runs: the preset's parent run plus one child run per cell."
+              + (" With rounds: cells = the cells the round ran (+ cells the cut grid could not leave out); "
+                 "images or pairs evaluated = (cell, image or pair) combinations computed, kept = those whose "
+                 "per-view rows a cell kept from its previous round." if rounds else "")]
+    summaries, views, ties, counted = {}, {}, [], []
     tables = ["", "## The tables", "", "Each preset's table in the survey's layout, `ours [low, high] (paper)`, "
               "with the entries tied with its best below it, and its plots."]
     for r in latest:
         summaries[r["preset"]], views[r["preset"]] = load_summaries(r["output"]), load_views(r["output"])
+        per_cell = cell_counts(summaries[r["preset"]], views[r["preset"]])
+        per_cell.to_csv(assets / f"{r['preset']}__cell_counts.csv", index=False)
+        counted.append(f"| {r['preset']} | {_tally(per_cell)} |")
         for table in build_tables(summaries[r["preset"]], views[r["preset"]], alpha):
             if table.name != r["preset"] and not table.name.startswith(f"{r['preset']}_"):  # one per variant
                 continue  # e.g. the Table 2 sweep also fills Table 3; its own preset shows it
@@ -135,13 +148,19 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
             (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
             if table.ties is not None and table.ties.best:
                 ties.append(_ties_row(table))
-        for png in sorted((Path(r["output"]) / "report").glob("*.png")):
+        for png in sorted(_report_dir(r, summaries[r["preset"]], views[r["preset"]], alpha).glob("*.png")):
             target = assets / f"{r['preset']}__{png.name}"
             shutil.copy(png, target)
             tables += ["", f"![{png.stem}](reproduction/{target.name})"]
     frames = {k: frame(v) for k, v in summaries.items()}
     found = sequential.findings() if sequential else check_findings(frames, views, alpha)
-    lines += findings_section(found, survey_variant(frames)[1], alpha, sequential)
+    lines += findings_section(found, survey_variant(frames)[1], alpha, sequential, results)
+    if rounds:
+        lines += ["", "## Counts per cell", "",
+                  "Every table shows every cell of its preset at the count that cell last reached (a cell no "
+                  "undecided finding reads is not run again). Images (Tables 2, 3, 6) or pairs (Tables 4, 5, 7) per "
+                  "texture, per preset; each cell's in `reproduction/<preset>__cell_counts.csv`.", "",
+                  "| preset | per texture: cells |", "|---|---|", *counted]
     if ties:
         lines += ["", "## Ties with the best", "",
                   "Per table, the entries whose paired t test over images against the best is not significant "
@@ -158,6 +177,45 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
     return path
 
 
+def _cells(r: dict) -> str:
+    return f"{r['cells'] - r['extra_cells']} + {r['extra_cells']}" if r.get("extra_cells") else f"{r['cells']}"
+
+
+def _items(r: dict) -> str:
+    return f" {r['items_evaluated']} ({r['items_reused']}) |" if r.get("items_evaluated") is not None else " - |"
+
+
+def cell_counts(summaries: list[dict], views: dict) -> pd.DataFrame:
+    """Per cell: its key, status, images or pairs, and images or pairs per texture (from its per-view rows)."""
+    rows = []
+    for s in summaries:
+        cell = views.get(s.get("key"))
+        textures = cell["texture"].nunique() if cell is not None and len(cell) else 0
+        n = int(s.get("n_images") or 0)
+        rows.append({"cell": s.get("key"), "status": s.get("status"), "images_or_pairs": n,
+                     "per_texture": round(n / textures) if textures else None})
+    return pd.DataFrame(rows, columns=["cell", "status", "images_or_pairs", "per_texture"])
+
+
+def _tally(per_cell: pd.DataFrame) -> str:
+    known = per_cell.dropna(subset=["per_texture"])
+    found = known.groupby("per_texture").size().sort_index(ascending=False)
+    text = "; ".join(f"{int(n)}: {k} cells" for n, k in found.items())
+    rest = len(per_cell) - len(known)
+    return text + (f"; {rest} cells without rows (not applicable or failed)" if rest else "")
+
+
+def _report_dir(r: dict, summaries: list[dict], views: dict, alpha: float) -> Path:
+    """The plots of a run; of every cell when the round ran only some of them (rebuilt from all its cells)."""
+    if r.get("extra_cells") is None or len(summaries) <= r["cells"]:
+        return Path(r["output"]) / "report"
+    from gtsweep.report.output import write_report
+
+    out = Path(r["output"]) / "report_every_cell"
+    write_report(summaries, out, plots=True, views=views, alpha=alpha, scale=load_scale(r["output"]))
+    return out
+
+
 def _ties_row(table) -> str:
     t = table.ties
     untested = f"; {len(t.untested)} without per-view rows" if t.untested else ""
@@ -165,7 +223,8 @@ def _ties_row(table) -> str:
             f"| {', '.join(t.tied) or '-'} |")
 
 
-def findings_section(findings: list, variant: str, alpha: float, sequential: Sequential | None = None) -> list[str]:
+def findings_section(findings: list, variant: str, alpha: float, sequential: Sequential | None = None,
+                     results: list[dict] = ()) -> list[str]:
     """The findings table: per finding its verdict, test, margin, n, intervals, correction (and with rounds: the
     round and count per texture of its verdict, the level of that look; undecided: the images that would
     decide it at the observed effect)."""
@@ -182,12 +241,16 @@ def findings_section(findings: list, variant: str, alpha: float, sequential: Seq
             f"cannot tell; one-sided tests at alpha = {alpha:g}, intervals at 1 - 2 alpha.{design}"
             + (f" {variant}" if variant else ""), ""]
     if sequential:
-        rows = ["| finding | verdict | decided at (round, n per texture, level) | test | margin | correction | "
-                "evidence |", "|---|---|---|---|---|---|---|"]
+        rows = ["| finding | verdict | decided at (round, n per texture, level) | compute: its preset's rounds to "
+                "this verdict / full protocol (est.) | test | margin | correction | evidence |",
+                "|---|---|---|---|---|---|---|---|"]
         for s in sequential.status:
             f = s.finding or findings[sequential.status.index(s)]
             at = f"round {s.round}, {s.per_texture}, {s.nominal:.2g}" if s.round else "-"
-            rows.append(f"| {f.text} | {f.verdict}{_more(f)} | {at} | {f.test or '-'} | {f.margin} | "
+            preset = s.hypothesis.preset
+            cost = (f"{runs.spent(results, preset, s.round) / 60:.1f} / "
+                    f"{runs.full_protocol_estimate(results, preset) / 60:.1f} min") if s.round and results else "-"
+            rows.append(f"| {f.text} | {f.verdict}{_more(f)} | {at} | {cost} | {f.test or '-'} | {f.margin} | "
                         f"{f.correction or '-'} | {f.evidence.replace('|', '/')} |")
         return head + rows
     return head + ["| finding | verdict | test | margin | n | correction | evidence |",

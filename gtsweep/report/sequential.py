@@ -17,9 +17,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import pandas as pd
+
 from gtsweep.evaluation.statistics import spent_alpha
 from gtsweep.evaluation.verdicts import DECIDED
 from gtsweep.orchestration.preset_runs import counts, fraction
+from gtsweep.orchestration.results import METHOD_COLUMNS
 from gtsweep.report.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries
@@ -53,8 +56,9 @@ class Sequential:
         self.alpha, self.information = alpha, information  # information(preset, counts): fraction t in (0, 1]
         self.status = [Status(h) for h in findings]
 
-    def update(self, k: int, latest: dict[str, dict]) -> set[str]:
-        """Judge every open finding whose preset ran in round ``k`` (0-based); the presets still needed."""
+    def update(self, k: int, latest: dict[str, dict]) -> dict[str, list[dict]]:
+        """Judge every open finding whose preset ran in round ``k`` (0-based); the cells the next round needs:
+        per preset, the union of the cells its open findings read (:attr:`Hypothesis.needs`), as method dicts."""
         data = {}
         for s in self.status:
             run = latest.get(s.hypothesis.preset)
@@ -70,8 +74,28 @@ class Sequential:
             s.round, s.per_texture, s.fraction, s.spent, s.nominal = k + 1, counts(preset, run["counts"]), t, \
                 spent_alpha(self.alpha, t), nominal
             s.looks.append((k + 1, s.per_texture, nominal, s.finding.verdict))
-        return {s.hypothesis.preset for s in self.status if not s.final}
+        return needed_cells([s.hypothesis for s in self.status if not s.final], latest)
+
+    def decided_at(self) -> dict[str, tuple[int, int]]:
+        """Per finding (its text): the round and the count per texture of its last look."""
+        return {s.hypothesis.text: (s.round, s.per_texture) for s in self.status if s.round}
 
     def findings(self) -> list[Finding]:
         return [s.finding or Finding(s.hypothesis.text, "not measured") for s in self.status]
 
+
+
+def needed_cells(open_findings: list[Hypothesis], latest: dict[str, dict]) -> dict[str, list[dict]]:
+    """Per preset of ``open_findings``, the methods of the cells they read among the cells of its newest run."""
+    needed = {}
+    for preset in dict.fromkeys(h.preset for h in open_findings):
+        if preset not in latest:
+            continue
+        cells = frame(load_summaries(latest[preset]["output"]))
+        keep = pd.Series(False, index=cells.index)
+        for hypothesis in (h for h in open_findings if h.preset == preset):
+            keep |= hypothesis.needs(cells).to_numpy()
+        methods = [c for c in METHOD_COLUMNS if c in cells]
+        needed[preset] = [{m: (None if pd.isna(v) else v) for m, v in row.items()}
+                          for row in cells.loc[keep.to_numpy(), methods].to_dict("records")]
+    return needed

@@ -35,7 +35,7 @@ def read_header(path: Path) -> dict:
     for key, pattern in (("stop", _STOP), ("selector", _SELECTOR), ("fingerprint", _FINGERPRINT)):
         if m := pattern.search(header):
             row[key] = m.group(1)
-    node = next(iter((yaml.safe_load(text) or {}).values()), {}) or {}
+    node = (yaml.safe_load(text) or {}).get(row["detector"]) or {}  # beside it: the defaults list (its schema)
     space, params = node.get("search_space") or {}, node.get("params") or {}
     row["values"] = {k: params[k] for k in space if k in params}
     return row
@@ -64,12 +64,11 @@ def tuning_table(directory: Path) -> str:
     rows = tuned_rows(directory)
     if not rows:
         return ""
-    views = next((r["views"] for r in rows if "views" in r), "?")
     n = next((r["min_keypoints"] for r in rows if "min_keypoints" in r), 100)
-    lines = [f"| detector | trials | stopped | selector | views < {n} KPs of {views} (defaults → tuned) | "
+    lines = [f"| detector | trials | stopped | selector | views < {n} KPs (defaults → tuned) of views | "
              "repeatability (defaults → tuned) | tuned parameters |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         values = ", ".join(f"{k}={_value(v)}" for k, v in r["values"].items())
         lines.append(f"| {r['detector']} | {r.get('trials', '?')} | {r.get('stop', '?')} | {r.get('selector', '?')} "
-                     f"| {_change(r, 'few', str)} | {_change(r, 'repeatability', lambda x: f'{x:.2f}')} | {values} |")
+                     f"| {_change(r, 'few', str)} of {r.get('views', '?')} | {_change(r, 'repeatability', lambda x: f'{x:.2f}')} | {values} |")
     return "\n".join(lines)
