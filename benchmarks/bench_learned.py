@@ -5,9 +5,12 @@ Usage: PYTHONPATH=. .venv/bin/python benchmarks/bench_learned.py [--threads 2] [
 Each method runs in a process of its own (so that its peak resident memory, ``ru_maxrss``, is its own): one
 warm-up call, then the median of ``--repeats`` timed calls on a 1288 x 964 image (the survey's Micro-GPS size)
 of smoothed noise at two scales. Detector/descriptors (ALIKED-n16, ALIKED-n16rot, DISK: torch; XFeat: cv2.dnn, for
-comparison) are timed for detect + describe of N = 1000 keypoints; ``lightglue:<descriptor>`` times LightGlue
-(LighterGlue for XFeat) matching two such images' 1000 keypoints each (features computed before the clock starts).
-torch and OpenCV use ``--threads`` threads. Timings on a shared machine vary with its load: say so when quoting.
+comparison) are timed for detect + describe of N = 1000 keypoints in one process, as a sweep's serial run does
+(one network pass: the describe step reuses the detection's pass; the memo of passes is emptied before each call);
+``lightglue:<descriptor>`` times LightGlue (LighterGlue for XFeat) matching two such images' 1000 keypoints each
+(features computed before the clock starts). torch and OpenCV use ``--threads`` threads. Besides wall time, the
+process's CPU time (user + system) per call is printed: on a shared machine the wall time grows with the load,
+the CPU time much less. Say so when quoting.
 """
 from __future__ import annotations
 
@@ -37,6 +40,11 @@ def features(image: np.ndarray, name: str):
     from gtsweep.stages.describe import describe
     from gtsweep.stages.detect import detect
 
+    if name != "xfeat":
+        from gtsweep.stages.learned import DETECTIONS
+
+        DETECTIONS.clear()  # time a pass, not a memo hit
+
     params = {"top_k": 1000} if name == "xfeat" else {"max_num_keypoints": 1000}
     return describe(image, detect(image, name, **params), name, name)
 
@@ -57,13 +65,20 @@ def measure(method: str, repeats: int) -> dict:
         def run():
             features(image, method)
     run()  # warm-up: loads the weights
-    times = []
+    times, cpu_times = [], []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), cpu_seconds()
         run()
         times.append(1000 * (time.perf_counter() - start))
-    return {"method": method, "ms": statistics.median(times), "peak_mb": resource.getrusage(
-        resource.RUSAGE_SELF).ru_maxrss / 1024}
+        cpu_times.append(1000 * (cpu_seconds() - cpu_start))
+    return {"method": method, "ms": statistics.median(times), "cpu_ms": statistics.median(cpu_times),
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def cpu_seconds() -> float:
+    """This process's user + system CPU time (all its threads)."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def main() -> int:
@@ -79,7 +94,7 @@ def main() -> int:
         return 0
     print(f"learned methods on a {SIZE[1]}x{SIZE[0]} image, {args.threads} threads, median of {args.repeats} "
           f"(detectors: detect + describe N = 1000; lightglue: one pair of 1000 + 1000 keypoints)")
-    print(f"{'method':<26}{'ms':>10}{'peak MB':>10}")
+    print(f"{'method':<26}{'ms':>10}{'CPU ms':>10}{'peak MB':>10}")
     for method in args.methods:
         child = subprocess.run([sys.executable, __file__, "--one", method, "--threads", str(args.threads),
                                 "--repeats", str(args.repeats)], capture_output=True, text=True)
@@ -87,7 +102,7 @@ def main() -> int:
             print(f"{method:<26} failed: {(child.stderr.strip().splitlines() or ['?'])[-1]}")
             return 1
         row = json.loads(child.stdout.strip().splitlines()[-1])
-        print(f"{method:<26}{row['ms']:>10.0f}{row['peak_mb']:>10.0f}")
+        print(f"{method:<26}{row['ms']:>10.0f}{row['cpu_ms']:>10.0f}{row['peak_mb']:>10.0f}")
     return 0
 
 
