@@ -166,3 +166,23 @@ def test_cluster_of_the_run_record_becomes_tags():
     assert cluster_tags(record) == {"gtsweep.cluster.backend": "ray", "gtsweep.cluster.address": "10.0.0.5:6379",
                                     "gtsweep.cluster.nodes": "2", "gtsweep.cluster.cpus": "8"}
     assert cluster_tags({"cells": 4}) == {} and cluster_tags({"cluster": {}}) == {}
+
+
+def test_a_composed_job_names_its_methods_as_written(monkeypatch, tmp_path):
+    """Hydra's defaults list of a real composition: a method file with a defaults list (its schema first) is its
+    own ``_self_`` entry there, and still names the option as written (``tuned/sift``)."""
+    from hydra import compose
+    from hydra.core.hydra_config import HydraConfig
+
+    from gtsweep.cli import preflight
+    from gtsweep.cli.search import PRIMARY_NAME
+    from gtsweep.tracking.params import written_options
+
+    monkeypatch.chdir(tmp_path)
+    args = ["detector=[tuned/sift,orb]", "descriptor=[brief]"]
+    with preflight.composer(args):
+        cfg = compose(config_name=PRIMARY_NAME, overrides=args, return_hydra_config=True)
+        HydraConfig.instance().set_config(cfg)
+        written = written_options()
+    assert written["detector"] == {"sift": "tuned/sift", "orb": "orb"}
+    assert written["descriptor"] == {"brief": "brief"}

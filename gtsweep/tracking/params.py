@@ -105,8 +105,8 @@ def written_options() -> dict[str, dict[str, str]]:
             job.job.config_name, list(job.overrides.task), RunMode.RUN)
     except Exception:  # the job composed already; a defaults list that cannot be rebuilt only loses the names
         return {}
-    return options_by_name((d.package or "", d.config_path) for d in defaults.defaults
-                           if d.config_path and not d.is_self)
+    # A method file with a defaults list (its schema first) is listed as its own ``_self_`` entry: kept.
+    return options_by_name((d.package or "", d.config_path) for d in defaults.defaults if d.config_path)
 
 
 def batches(params: Mapping[str, str], size: int = MAX_PER_BATCH) -> Iterator[list]:
