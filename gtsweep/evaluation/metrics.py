@@ -16,6 +16,7 @@ Conventions (shared by every function here):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -119,8 +120,10 @@ def map_keypoints(keypoints, H) -> np.ndarray:
     return np.column_stack([_map_points(kps[:, :2], h), kps[:, 2] * scale])
 
 
+@functools.lru_cache(maxsize=64)
 def _max_centre_distance(iou_threshold: float) -> float:
-    """Factor c such that IoU > t implies centre distance < c · (larger radius).
+    """Factor c such that IoU > t implies centre distance < c · (larger radius) (a pure function of t, memoised:
+    every repeatability call of a sweep asks for the same t).
 
     For fixed larger radius and distance the IoU grows with the smaller radius (checked numerically over the
     whole admissible radius ratio range, see tests/test_metrics.py), so c is the distance at which two EQUAL
