@@ -6,6 +6,7 @@ float64 array with the columns of :data:`COLUMNS`. ``angle`` is -1 where the det
 """
 from __future__ import annotations
 
+import itertools
 import operator
 from typing import Sequence
 
@@ -26,11 +27,15 @@ _ATTRIBUTES = operator.attrgetter("size", "angle", "response", "octave", "class_
 
 def to_array(keypoints: Sequence[cv2.KeyPoint]) -> np.ndarray:
     """Convert OpenCV keypoints to an ``(N, 7)`` array (see :data:`COLUMNS`); positions come from OpenCV's own
-    vectorised ``KeyPoint_convert``, the other attributes through one C-level ``map``."""
-    if len(keypoints) == 0:
+    vectorised ``KeyPoint_convert``, the other attributes stream through one C-level ``map`` into ``fromiter``."""
+    n = len(keypoints)
+    if n == 0:
         return empty()
-    positions = np.asarray(cv2.KeyPoint_convert(keypoints), dtype=np.float64).reshape(-1, 2)
-    return np.column_stack([positions, np.array(list(map(_ATTRIBUTES, keypoints)), dtype=np.float64)])
+    array = np.empty((n, len(COLUMNS)), dtype=np.float64)
+    array[:, [X, Y]] = cv2.KeyPoint_convert(keypoints)
+    attributes = itertools.chain.from_iterable(map(_ATTRIBUTES, keypoints))
+    array[:, SIZE:] = np.fromiter(attributes, dtype=np.float64, count=n * (len(COLUMNS) - SIZE)).reshape(n, -1)
+    return array
 
 
 def to_keypoints(array: np.ndarray) -> list[cv2.KeyPoint]:
