@@ -10,7 +10,7 @@ from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
-from gtsweep.orchestration.cache import KeypointCache, detection_key
+from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash
 from gtsweep.orchestration.grid import build_grid
 from gtsweep.orchestration.results import ResultStore, summarize
 
@@ -64,6 +64,11 @@ def test_cache_round_trip_and_counts(tmp_path):
     key = detection_key(image, None, "sift", {"params": {}}, "nms", {"params": {"n": 5}})
     assert key != detection_key(image, None, "sift", {"params": {}}, "nms", {"params": {"n": 6}})
     assert key != detection_key(image + 1, None, "sift", {"params": {}}, "nms", {"params": {"n": 5}})
+    # the image hashed once keys every detection of it: the same keys as hashing it per key
+    hashed = image_hash(image, None)
+    assert detection_key(image, None, "sift", {"params": {}}, "nms", {"params": {"n": 5}}, hashed=hashed) == key
+    assert detection_key(image, None, "sift", {"params": {}}, "raw", {}, hashed=hashed) == detection_key(
+        image, None, "sift", {"params": {}}, "raw", {})
     keypoints = np.random.default_rng(0).random((7, 7))
     first = KeypointCache(tmp_path)
     assert first.get(key) is None and first.misses == 1

@@ -359,3 +359,16 @@ def test_embedded_ray_listens_on_loopback_only():
         ray.shutdown()
     loopback = {"0100007F", "0000000000000000FFFF00000100007F", "00000000000000000000000001000000"}
     assert addresses and addresses <= loopback, addresses  # 127.0.0.1, ::ffff:127.0.0.1, ::1
+
+
+def test_an_atomic_write_that_fails_keeps_the_old_file_and_leaves_no_temporary_file(tmp_path):
+    target = tmp_path / "deep" / "er" / "a.json"
+    write_atomically(target, "old")  # the missing folders are made
+
+    def failing(f):
+        f.write(b"half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match="a.json"):
+        write_atomically(target, failing)
+    assert target.read_text() == "old" and [p.name for p in target.parent.iterdir()] == ["a.json"]

@@ -1,8 +1,9 @@
 """Atomic file writes: a reader sees the old file or the whole new one, never a half-written one."""
 from __future__ import annotations
 
+import errno
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import IO, Callable
 
@@ -39,17 +40,34 @@ def write_atomically(path: str | os.PathLike, content: str | Callable[[IO[bytes]
         raise
 
 
+def _create_temporary(path: Path) -> tuple[int, Path]:
+    """A new file of our own next to ``path`` (``.<name>.<random>.tmp``, opened exclusively), created with mode
+    0666 so that the kernel applies the umask as a plain ``open`` does; ``path``'s folder is made when missing."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0) | getattr(os, "O_NOFOLLOW", 0)
+    made = False
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+        except FileNotFoundError:
+            if made:
+                raise
+            path.parent.mkdir(parents=True, exist_ok=True)
+            made = True
+    raise FileExistsError(errno.EEXIST, "no unused temporary file name", str(path))
+
+
 def _write(path: Path, content) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = _create_temporary(path)
     try:
         with os.fdopen(fd, "wb") as f:
             if isinstance(content, str):
                 f.write(content.encode())
             else:
                 content(f)
-        respect_umask(tmp)
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise

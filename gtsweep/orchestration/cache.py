@@ -11,6 +11,7 @@ recomputed and counted (``corrupt``). A cache that cannot be written is a warnin
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import sys
@@ -44,14 +45,21 @@ def library_versions() -> dict:
     return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own, "surf": surf}
 
 
-def detection_key(image: np.ndarray, mask: np.ndarray | None, detector: str, detector_cfg: dict,
-                  selector: str, selector_cfg: dict, versions: dict | None = None) -> str:
-    """The cache key of one detection + selection."""
+def image_hash(image: np.ndarray, mask: np.ndarray | None):
+    """The part of :func:`detection_key` that reads the pixels (a ``hashlib`` object): hashed once, it keys every
+    detection of the image (the selected one and the detector's raw output)."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(image).tobytes())
     h.update(str(image.shape).encode())
     if mask is not None:
         h.update(np.ascontiguousarray(mask).tobytes())
+    return h
+
+
+def detection_key(image: np.ndarray, mask: np.ndarray | None, detector: str, detector_cfg: dict,
+                  selector: str, selector_cfg: dict, versions: dict | None = None, hashed=None) -> str:
+    """The cache key of one detection + selection; ``hashed``: :func:`image_hash` of ``image`` and ``mask``."""
+    h = (image_hash(image, mask) if hashed is None else hashed).copy()
     described = [detector, detector_cfg, selector, selector_cfg, versions or library_versions()]
     h.update(json.dumps(described, sort_keys=True, default=str).encode())
     return h.hexdigest()
@@ -117,8 +125,10 @@ class KeypointCache:
             return
         fields = {"keypoints": keypoints, "n_detected": n_detected, "seconds": seconds, "key": key,
                   "checksum": _checksum(key, keypoints, n_detected, seconds)}
+        entry = io.BytesIO()  # numpy's zip writer makes many small writes and seeks: in memory, then one write
+        np.savez(entry, **fields)
         try:
-            write_atomically(self._path(key), lambda f: np.savez(f, **fields))
+            write_atomically(self._path(key), lambda f: f.write(entry.getbuffer()))
         except OSError:  # full disk, read-only folder: the task goes on with its memory cache
             self.write_errors += 1
 
@@ -131,10 +141,13 @@ def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | No
     detection (survey Table 2) selects from one detector call; ``seconds`` is that call's time plus the selection's.
     Only the selected lookup counts as a hit or miss.
     """
-    key = detection_key(image, mask, detector, {"params": detector_params}, selector, {"params": selector_params})
+    hashed = image_hash(image, mask)
+    key = detection_key(image, mask, detector, {"params": detector_params}, selector, {"params": selector_params},
+                        hashed=hashed)
     found = cache.get(key)
     if found is None:
-        raw_key = f"{RAW}-" + detection_key(image, mask, detector, {"params": detector_params}, RAW, {})
+        raw_key = f"{RAW}-" + detection_key(image, mask, detector, {"params": detector_params}, RAW, {},
+                                             hashed=hashed)
         raw = cache.get(raw_key, count=False)
         if raw is None:
             raw = detect_raw(image, mask, detector, detector_params)
