@@ -100,6 +100,30 @@ def _inlier_counts(a: np.ndarray, b: np.ndarray, zt: np.ndarray, zr: np.ndarray,
     return counts
 
 
+def _distinct_counts(first, second, valid, a, b, zt, zr, threshold: float) -> np.ndarray:
+    """:func:`_inlier_counts` of every valid hypothesis (-1 for the others), each distinct one scored once.
+
+    A hypothesis depends only on its unordered sample pair: swapping the two matches negates both differences,
+    which leaves their quotient ``a`` and the midpoints behind ``b`` unchanged bit for bit. With few matches most
+    of the 2000 samples repeat a pair; each distinct pair is scored once and its count copied to its repeats
+    (checked: the copies' ``a`` and ``b`` equal their representative's exactly, else every one is scored). With
+    many more pairs than samples (few repeats) finding them costs more than it saves: all are scored."""
+    counts = np.full(len(a), -1, dtype=np.int64)
+    chosen = np.flatnonzero(valid)
+    m = len(zt)
+    if m * (m - 1) // 2 > 2 * len(a):
+        counts[chosen] = _inlier_counts(a[chosen], b[chosen], zt, zr, threshold)
+        return counts
+    pair = np.minimum(first, second)[chosen] * m + np.maximum(first, second)[chosen]
+    _, where, back = np.unique(pair, return_index=True, return_inverse=True)
+    scored = chosen[where]
+    if np.array_equal(a[scored][back], a[chosen]) and np.array_equal(b[scored][back], b[chosen]):
+        counts[chosen] = _inlier_counts(a[scored], b[scored], zt, zr, threshold)[back]
+    else:
+        counts[chosen] = _inlier_counts(a[chosen], b[chosen], zt, zr, threshold)
+    return counts
+
+
 def _matrix(a: complex, b: complex) -> np.ndarray:
     return np.array([[a.real, -a.imag, b.real], [a.imag, a.real, b.imag], [0.0, 0.0, 1.0]])
 
@@ -136,7 +160,7 @@ def estimate_pose(test_xy, ref_xy, model: str = "similarity", iterations: int = 
     if model == "euclidean":
         a = _unit(a)
     b = 0.5 * (zr[first] + zr[second]) - a * 0.5 * (zt[first] + zt[second])
-    counts = np.where(valid, _inlier_counts(a, b, zt, zr, threshold), -1)
+    counts = _distinct_counts(first, second, valid, a, b, zt, zr, threshold)
     best = int(np.argmax(counts))
     inliers = np.abs(a[best] * zt + b[best] - zr) < threshold
     fit = _fit(zt[inliers], zr[inliers], with_scale=(model == "similarity"))
