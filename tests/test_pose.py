@@ -84,3 +84,20 @@ def test_matrix_product_scoring_equals_direct_errors_even_on_the_threshold():
     counts = pose._inlier_counts(a, b, zt, zr, 3.0)
     np.testing.assert_array_equal(counts, _direct_counts(a, b, zt, zr, 3.0))
     assert counts[0] > 100 and 0 < counts[1] <= 100
+
+
+@pytest.mark.parametrize("n", [3, 12, 40])
+def test_repeated_sample_pairs_get_the_count_of_scoring_each_hypothesis(n):
+    # few matches: 2000 samples repeat the n(n-1)/2 pairs, each scored once; the counts are those of all 2000
+    test, ref, _ = noisy_matches(similarity(5, 1.0, 3, -2), n=n, outliers=0.3)
+    zt, zr = test[:, 0] + 1j * test[:, 1], ref[:, 0] + 1j * ref[:, 1]
+    rng = np.random.default_rng(8)
+    first, second = rng.integers(n, size=2000), rng.integers(n - 1, size=2000)
+    second += second >= first
+    a = (zr[second] - zr[first]) / (zt[second] - zt[first])
+    b = 0.5 * (zr[first] + zr[second]) - a * 0.5 * (zt[first] + zt[second])
+    valid = np.ones(2000, dtype=bool)
+    valid[::7] = False
+    counts = pose._distinct_counts(first, second, valid, a, b, zt, zr, 3.0)
+    assert np.array_equal(counts[valid], pose._inlier_counts(a[valid], b[valid], zt, zr, 3.0))
+    assert (counts[~valid] == -1).all()
