@@ -93,7 +93,10 @@ def _inlier_counts(a: np.ndarray, b: np.ndarray, zt: np.ndarray, zr: np.ndarray,
         squared = hyp[start:start + step] @ pts
         rows = slice(start, start + step)
         counts[rows] = np.count_nonzero(squared < limit - bound[rows], axis=1)
-        unsure = np.flatnonzero(np.count_nonzero(squared <= limit + bound[rows], axis=1) != counts[rows]) + start
+        near = squared <= limit + bound[rows]  # holds wherever the count above does: equal totals, equal rows
+        if np.count_nonzero(near) == counts[rows].sum():
+            continue
+        unsure = np.flatnonzero(np.count_nonzero(near, axis=1) != counts[rows]) + start
         if unsure.size:  # a value within rounding of the threshold: score these hypotheses directly
             counts[unsure] = np.count_nonzero(
                 np.abs(a[unsure, None] * zt[None, :] + b[unsure, None] - zr[None, :]) < threshold, axis=1)
