@@ -48,3 +48,23 @@ def test_subsets_of_one_description_equal_describing_each_subset(detector, descr
     memo.describe(image.copy(), keypoints.copy())
     memo.describe(image.copy(), keypoints.copy(), 40)
     assert memo.computed == 4
+
+
+def test_the_same_keypoints_in_another_image_are_described_again_and_one_image_is_never_hashed(monkeypatch):
+    import gtsweep.evaluation.reuse as reuse
+
+    image = _texture()
+    found, _ = detect_timed(image, "sift", None)
+    keypoints = select(found, "nms", image.shape, n=100)
+    memo = DescribeOnce("brief", "sift", descriptor_params({"params": {}}, "sift"))
+    hashed = []
+    real = reuse._digest
+    monkeypatch.setattr(reuse, "_digest", lambda array: (hashed.append(array.shape), real(array))[1])
+    memo.describe(image, keypoints)
+    assert image.shape not in hashed  # described once: only the keypoints were hashed
+    other = np.ascontiguousarray(image[:, ::-1])  # other pixels, the same keypoints
+    _, descriptors, _ = memo.describe(other, keypoints)
+    assert memo.computed == 2
+    assert np.array_equal(descriptors, describe_timed(other, keypoints, "brief", "sift")[1])
+    memo.describe(other.copy(), keypoints)  # equal pixels: found again
+    assert memo.computed == 2

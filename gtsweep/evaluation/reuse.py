@@ -9,6 +9,7 @@ given; AKAZE and KAZE read ``class_id``).
 from __future__ import annotations
 
 import hashlib
+import weakref
 
 import numpy as np
 
@@ -21,14 +22,16 @@ def _digest(array: np.ndarray) -> bytes:
 
 
 class _Seen:
-    """An image the memo has described, its content digest computed only when another call could share it."""
+    """An image the memo has described, held weakly (the memo keeps no image alive); its content digest is
+    computed only when another call could share its result, while the image still exists (else None)."""
 
     def __init__(self, image: np.ndarray):
-        self.image, self._digest = image, None
+        self._image, self._digest = weakref.ref(image), None
 
-    def digest(self) -> bytes:
+    def digest(self) -> bytes | None:
         if self._digest is None:
-            self._digest = _digest(self.image)
+            image = self._image()
+            self._digest = None if image is None else _digest(image)
         return self._digest
 
 
@@ -40,6 +43,8 @@ class DescribeOnce:
 
     Calls are looked up by the keypoints' digest first; an image's content is hashed only when an earlier call
     had the same keypoints (then both images are compared by digest), so an image described once is never hashed.
+    An earlier image that no longer exists (a task's views hold theirs) cannot be compared: described again.
+    Images are read, never changed in place (an image changed after its description would be compared as it is now).
     """
 
     def __init__(self, descriptor: str, detector: str, params: dict, foreign_scale: str | None = None):
@@ -51,9 +56,11 @@ class DescribeOnce:
     def describe(self, image: np.ndarray, keypoints: np.ndarray, count: int | None = None):
         chosen = np.asarray(keypoints) if count is None else np.asarray(keypoints)[:count]
         earlier = self._found.setdefault(_digest(chosen), [])
+        image = np.asarray(image)
         seen = _Seen(image)
         for other, result in earlier:
-            if other.digest() == seen.digest():
+            digest = other.digest()
+            if digest is not None and digest == seen.digest():
                 return result
         result = describe_timed(image, chosen, self.descriptor, self.detector, self.foreign_scale, **self.params)
         earlier.append((seen, result))
