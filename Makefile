@@ -32,9 +32,10 @@ browser:
 	  apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } || \
 	  echo "make: no chromium (apt-get install -y chromium): the browser test will skip"
 
-# pytest's exit code 5 (no test collected) counts as a failure.
+# pytest's exit code 5 (no test collected) counts as a failure. The 20 slowest tests are listed at the end (the
+# suite's time budget is ~10 minutes on 2 cores).
 test: $(STAMP) browser
-	@$(BIN)/python -m pytest; rc=$$?; \
+	@$(BIN)/python -m pytest --durations=20; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
 
 # The fast lane for development (746 unit tests, about 3 minutes on 2 cores); `make test` runs every lane.

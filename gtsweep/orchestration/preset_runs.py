@@ -23,6 +23,7 @@ from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.memory import PeakMemory
+from gtsweep.orchestration import task_costs
 
 PRESETS = ("table2_selectors", "table3_detectors", "table4_incremental", "table5_absolute", "table6_pairings",
            "table7_reference_features")
@@ -192,18 +193,25 @@ def _report(r: dict, log) -> None:
 
 
 def full_protocol_estimate(runs: list[dict], preset: str | None = None) -> float:
-    """Seconds the fixed full protocol would take (of one ``preset``, or of all), from each preset's first run
-    (every cell and image evaluated, nothing reused) scaled linearly in its count per texture (evaluation cost
-    grows with the number of images; a rough estimate: the fixed costs of a run are scaled too)."""
+    """Seconds the fixed full protocol would take (of one ``preset``, or of all), from measured per-task costs:
+    each preset's first run (every cell and image evaluated) with its task work (:mod:`task_costs`: detection,
+    description, matching, pose, from its cells' per-view timings) scaled to the survey's counts per texture and
+    its other costs (start-up, summaries, report) as measured. A preset's detections that an earlier preset at
+    the same scale already made are taken from the keypoint cache, as in a run of the whole protocol."""
     first = {}
     for r in runs:
         if r["preset"] not in first or r.get("round", 0) < first[r["preset"]].get("round", 0):
             first[r["preset"]] = r
-    total = 0.0
-    for name, r in first.items():
+    total, made = 0.0, {}
+    for name in sorted(first, key=lambda p: PRESETS.index(p) if p in PRESETS else len(PRESETS)):
+        r = first[name]
+        scale = 1 if name == "table2_selectors" else FULL[KIND[name]] / counts(name, r.get("counts", FULL))
+        rows = task_costs.view_rows(r["output"])
+        work = sum(task_costs.work_seconds(rows, made.get(scale)).values())
+        found = task_costs.detections(rows)
+        made.setdefault(scale, set()).update(zip(found["detector"], found["view"]))
         if preset is None or name == preset:
-            n = counts(name, r.get("counts", FULL))
-            total += r["wall_s"] * (1 if name == "table2_selectors" else FULL[KIND[name]] / n)
+            total += task_costs.scaled_seconds(r["wall_s"], work, task_costs.cpus_of(r["output"]), scale)
     return total
 
 
