@@ -79,7 +79,7 @@ def _inlier_counts(a: np.ndarray, b: np.ndarray, zt: np.ndarray, zr: np.ndarray,
 
     The product is NumPy's own ``einsum`` loop, not BLAS: with inner dimension 9 a multi-threaded BLAS gains nothing,
     and its threads keep spinning after each call, on the cores OpenCV's next ``detect``/``compute`` needs (serial
-    sweep, bench grid under load: OpenCV's calls 36 -> 26 s with ``OPENBLAS_NUM_THREADS=1``, the floor's 25 s).
+    sweep, bench grid under load: OpenCV's calls 33 -> 25 s, the floor's own 25 s).
     """
     mt, mr = zt.mean(), zr.mean()
     ct, cr, cb = zt - mt, zr - mr, b + a * mt - mr
