@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from gtsweep.orchestration.results import ResultStore
+
 #: Per-view columns that identify one description (with the cell's methods); one match adds the matcher.
 DESCRIPTION = ("detector", "selector", "descriptor", "view", "reference_count")
 TIMINGS = ("t_detect", "t_describe", "t_match", "t_pose")
@@ -27,12 +29,11 @@ TIMINGS = ("t_detect", "t_describe", "t_match", "t_pose")
 
 def view_rows(output: Path) -> pd.DataFrame:
     """Every cell's per-view rows of the sweep in ``output``, with the cell's methods as columns."""
-    frames = []
-    for summary in sorted(Path(output).glob("cells/*.json")):
-        rows = summary.with_suffix(".csv")
-        if rows.exists():
-            methods = json.loads(summary.read_text()).get("methods", {})
-            frames.append(pd.read_csv(rows).assign(**methods))
+    store, frames = ResultStore(output), []
+    for summary in sorted(store.cells_dir.glob("*.json")):
+        rows = store.rows(summary.stem)
+        if len(rows.columns):
+            frames.append(rows.assign(**json.loads(summary.read_text()).get("methods", {})))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["detector", "view", "image", "t_detect"])
 
 
