@@ -83,21 +83,30 @@ def test_two_sweeps_started_at_once_in_a_new_directory(tmp_path):
 
 
 OPEN_STORE = textwrap.dedent("""
-    import sys, time
+    import sys
+    import mlflow.tracking
     from gtsweep.tracking.store import open_store
-    folder, at, rounds = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+    folder, rounds = sys.argv[1], int(sys.argv[2])
     for round_ in range(rounds):  # every process opens the same fresh store at the same moment, once per round
-        time.sleep(max(0.0, at + 3 * round_ - time.time()))
+        print("ready", flush=True)
+        sys.stdin.readline()  # the test lets every process go at once
         client, experiment = open_store({"tracking_uri": f"sqlite:///{folder}/store{round_}.db"}, "gtsweep")
         client.set_terminated(client.create_run(experiment).info.run_id)
 """)
 
 
 def test_processes_opening_one_fresh_store_at_once(tmp_path):
-    """What Hydra's joblib launcher does: parallel jobs open one new sqlite store together."""
-    at = time.time() + 8  # after every process has imported MLflow
-    procs = [subprocess.Popen([sys.executable, "-c", OPEN_STORE, str(tmp_path), str(at), str(ROUNDS)],
-                              env=cli_env(), stderr=subprocess.PIPE, text=True) for _ in range(3)]
+    """What Hydra's joblib launcher does: parallel jobs open one new sqlite store together. Each round starts when
+    every process has imported MLflow and said it is ready."""
+    procs = [subprocess.Popen([sys.executable, "-c", OPEN_STORE, str(tmp_path), str(ROUNDS)], env=cli_env(),
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(3)]
+    for round_ in range(ROUNDS):
+        ready = [p.stdout.readline() for p in procs]
+        assert ready == ["ready\n"] * 3, (round_, [p.communicate(timeout=300)[1][-800:] for p in procs])
+        for p in procs:
+            p.stdin.write("go\n")
+            p.stdin.flush()
     errors = [p.communicate(timeout=300)[1] for p in procs]
     assert [p.returncode for p in procs] == [0] * 3, [e[-800:] for e in errors]
     for round_ in range(ROUNDS):
@@ -131,12 +140,13 @@ def _one_resume_line(err: str, code: int, sweep) -> str:
 @pytest.mark.parametrize("backend,sig,group,times", [("ray", signal.SIGINT, True, 2), ("ray", signal.SIGTERM, False, 1),
                                                      ("serial", signal.SIGINT, True, 1)],
                          ids=["ray-SIGINT-group", "ray-SIGTERM", "serial-SIGINT-group"])
-def test_an_interrupted_sweep_is_killed_cleanly_and_resumes(tmp_path, backend, sig, group, times):
+def test_an_interrupted_sweep_is_killed_cleanly_and_resumes(tmp_path, backend, sig, group, times, existing_store):
     """With Ray, Ctrl-C twice to the whole group (Ray's own processes get it too): exit 130 all the same (no crash
-    in Ray's exit code) and no process of the command left (test_bounded.py: the same while Ray's agents start)."""
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    in Ray's exit code) and no process of the command left (test_bounded.py: the same while Ray's agents start).
+    The store exists already (its creation by sweeps at once: the tests above)."""
+    uri = existing_store(tmp_path / "mlflow.db", tmp_path)
     grid = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,sift]", "selector=[nms]",
-            "transform=[incremental,absolute]", f"runner.backend={backend}", "runner.num_cpus=1",
+            "transform=[incremental]", f"runner.backend={backend}", "runner.num_cpus=1",
             f"mlflow.tracking_uri={uri}", "report.plots=false"]
     args = tiny_overrides(tmp_path, *grid)
     sweep, err = _interrupt(tmp_path, args, sig, group, lambda: list(tmp_path.glob("outputs/*/*/cells/*.json")),
@@ -154,15 +164,15 @@ def test_an_interrupted_sweep_is_killed_cleanly_and_resumes(tmp_path, backend, s
     assert list(parents["status"]) == ["FINISHED"]
 
 
-def test_an_interrupted_study_is_killed_cleanly(tmp_path):
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+def test_an_interrupted_study_is_killed_cleanly(tmp_path, existing_store):
+    uri = existing_store(tmp_path / "mlflow.db", tmp_path)
     args = tiny_overrides(tmp_path, "experiment=optimize", "detector=[fast]", "runner.backend=serial",
                           "experiment.n_trials=200", "experiment.n_startup_trials=2",
                           f"experiment.storage=sqlite:///{tmp_path}/optuna.db", f"experiment.tuned_root={tmp_path}/conf",
                           f"mlflow.tracking_uri={uri}")
 
     def trial_logged() -> bool:
-        return (tmp_path / "mlflow.db").exists() and len(_runs(uri)) >= 2
+        return len(_runs(uri)) >= 2
 
     study, err = _interrupt(tmp_path, args, signal.SIGINT, True, trial_logged)
     _one_resume_line(err, 130, study)
