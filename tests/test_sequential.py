@@ -41,7 +41,8 @@ FAKE = [Hypothesis("equal at once", "table5_absolute", "", "", "", "0.1", equal_
 
 
 @pytest.mark.slow
-def test_rounds_run_only_the_presets_of_undecided_findings(tmp_path):
+def test_rounds_run_only_the_presets_of_undecided_findings(tmp_path, existing_store):
+    existing_store(tmp_path / "mlflow.db", tmp_path / "round1")  # run_rounds' store, made once per session
     rounds = ((1, 2, 2), (1, 3, 3))  # 2 textures: 4 pairs, then 6
     sequential = Sequential(0.05, FAKE, information=lambda preset, counts: counts[1] / 3)
     runs = run_rounds(["table4_incremental", "table5_absolute"], sequential.update, tmp_path, rounds=rounds,

@@ -160,7 +160,7 @@ def test_joining_another_cluster_after_ray_ran_is_one_line(monkeypatch):
 @pytest.mark.slow
 def test_killed_sweep_resumes_to_the_same_numbers(tmp_path):
     grid = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,sift]", "selector=[nms]",
-            "transform=[incremental,absolute]", "mlflow.enabled=false", "runner.num_cpus=1"]
+            "transform=[incremental]", "mlflow.enabled=false", "runner.num_cpus=1"]
     args = tiny_overrides(tmp_path, *grid)
     # the uninterrupted reference in this process, serially (no second Ray start; Ray and serial agree bit for bit)
     reference = [a for a in tiny_overrides(tmp_path, SERIAL, *grid) if not a.startswith("cache.dir=")]
@@ -180,7 +180,7 @@ def test_killed_sweep_resumes_to_the_same_numbers(tmp_path):
     victim.wait()
     killed_dir = cells[0].parent.parent
     partial = len(list((killed_dir / "cells").glob("*.json")))
-    assert 3 <= partial < 24
+    assert 3 <= partial < 12
     resumed = run_cli([*args, f"cache.dir={tmp_path}/cache1", "resume=true"], tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     record = json.loads((killed_dir / "run.json").read_text())
