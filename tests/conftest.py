@@ -31,7 +31,7 @@ def empty_store_file(tmp_path_factory):
     return folder / "mlflow.db"
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def existing_store(empty_store_file):
     """``place(db, cwd)``: write at ``db`` the store a first sweep run in ``cwd`` would have left before its first
     run — for tests of what happens to a sweep's record, not of the store's creation (that is tested where sweeps

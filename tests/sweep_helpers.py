@@ -101,7 +101,7 @@ def mlflow_server(uri: str, cwd: Path, *extra: str, timeout: float = 180) -> Ite
             except OSError:
                 pass
             assert server.poll() is None and time.time() < deadline, "mlflow server did not come up"
-            time.sleep(0.5)
+            time.sleep(0.1)
         yield base
     finally:
         os.killpg(server.pid, signal.SIGTERM)

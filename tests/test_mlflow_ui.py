@@ -13,9 +13,11 @@ from __future__ import annotations
 import importlib.util
 import json
 import shutil
+import subprocess
+import sys
 
 import pytest
-from sweep_helpers import TINY_DATASET, mlflow_server, run_cli
+from sweep_helpers import TINY_DATASET, cli_env, mlflow_server
 
 from gtsweep.tracking.views import VIEW_NAME, run_url
 
@@ -35,20 +37,30 @@ def _chromium() -> str:
 
 
 @pytest.fixture(scope="module")
-def ui(tmp_path_factory):
-    """A sweep's store behind ``mlflow server``: (base address, the address gtsweep printed, store URI, tmp)."""
+def ui(tmp_path_factory, existing_store):
+    """A sweep's store behind ``mlflow server``: (base address, the address gtsweep printed, store URI, tmp). The
+    store exists before both (made once per session), so the server starts while the sweep runs."""
     chromium = _chromium()
     tmp = tmp_path_factory.mktemp("ui")
-    uri = f"sqlite:///{tmp / 'mlflow.db'}"
-    done = run_cli([*TINY_DATASET, "dataset.n_incremental=0", "dataset.n_absolute=0", f"dataset.cache_dir={tmp}/data",
-                    f"cache.dir={tmp}/cache", "runner.progress=false", "runner.backend=serial", "experiment=matching",
-                    "detector=[tuned/sift,orb]", "descriptor=[brief]", "selector=[nms]", "transform=[rotation]",
-                    "transform.rotation.strengths=[0,90]", "report.plots=false", f"mlflow.tracking_uri={uri}"], tmp)
-    assert done.returncode == 0, done.stderr[-2000:]
-    printed = next(line for line in done.stdout.splitlines() if line.startswith("MLflow: "))
-    with mlflow_server(uri, tmp) as base:
-        hint = printed.split("then open ")[-1].replace("http://127.0.0.1:5000", base)
-        yield {"base": base, "hint": hint, "uri": uri, "tmp": tmp, "chromium": chromium}
+    uri = existing_store(tmp / "mlflow.db", tmp)
+    sweep = subprocess.Popen(
+        [sys.executable, "-m", "gtsweep", *TINY_DATASET, "dataset.n_incremental=0", "dataset.n_absolute=0",
+         f"dataset.cache_dir={tmp}/data", f"cache.dir={tmp}/cache", "runner.progress=false", "runner.backend=serial",
+         "experiment=matching", "detector=[tuned/sift,orb]", "descriptor=[brief]", "selector=[nms]",
+         "transform=[rotation]", "transform.rotation.strengths=[0,90]", "report.plots=false",
+         f"mlflow.tracking_uri={uri}"], cwd=tmp, env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    try:
+        with mlflow_server(uri, tmp) as base:
+            out, err = sweep.communicate(timeout=300)
+            assert sweep.returncode == 0, err[-2000:]
+            printed = next(line for line in out.splitlines() if line.startswith("MLflow: "))
+            hint = printed.split("then open ")[-1].replace("http://127.0.0.1:5000", base)
+            yield {"base": base, "hint": hint, "uri": uri, "tmp": tmp, "chromium": chromium}
+    finally:
+        if sweep.poll() is None:
+            sweep.kill()
+            sweep.communicate()
 
 
 @pytest.fixture(scope="module")
