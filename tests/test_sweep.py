@@ -209,9 +209,10 @@ def test_glob_splits_jobs_and_outer_sweeps_work(tmp_path):
 
 
 @pytest.mark.slow
-def test_corrupt_image_stops_before_any_result_file(tmp_path):
+def test_corrupt_image_stops_before_any_result_file(tmp_path, existing_store):
     import dataset_fixtures as fx
 
+    existing_store(tmp_path / "mlflow.db", tmp_path)  # made once per session: this test is about the data set
     database = fx.microgps(tmp_path / "data")
     image = database.parent / database.read_text().splitlines()[4]
     image.write_bytes(b"garbage")
