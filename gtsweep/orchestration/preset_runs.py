@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -24,6 +25,7 @@ from pathlib import Path
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.memory import PeakMemory
 from gtsweep.orchestration import task_costs
+from gtsweep.orchestration.run_record import RunRecord, copy_absent
 
 PRESETS = ("table2_selectors", "table3_detectors", "table4_incremental", "table5_absolute", "table6_pairings",
            "table7_reference_features")
@@ -74,10 +76,14 @@ def run_preset(preset: str, overrides: list[str], work: Path, uri: str, cache: P
     args = [sys.executable, "-m", "gtsweep", f"sweeps={preset}", *overrides, f"hydra.run.dir={out}",
             f"mlflow.tracking_uri={uri}", "runner.progress=false", f"cache.dir={cache or work / 'cache'}"]
     start = time.perf_counter()
-    with open(work / f"{preset}.log", "w") as log:
+    with open(work / f"{preset}.log", "a") as log:  # a resumed run's attempts one after another
         process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, cwd=work)
-        with PeakMemory(pid=process.pid) as memory:  # the whole tree, every 0.5 s
-            process.wait()
+        try:
+            with PeakMemory(pid=process.pid) as memory:  # the whole tree, every 0.5 s
+                process.wait()
+        except BaseException:  # interrupted: the sweep stops as on its own Ctrl-C, keeping its finished cells
+            stop(process)
+            raise
     seconds = time.perf_counter() - start
     if process.returncode != 0:
         raise SystemExit(f"gtsweep.reproduce: preset {preset} failed (exit {process.returncode}); "
@@ -91,6 +97,18 @@ def run_preset(preset: str, overrides: list[str], work: Path, uri: str, cache: P
             "items_evaluated": record.get("items_evaluated"), "items_reused": record.get("items_reused")}
 
 
+def stop(process: subprocess.Popen, grace: float = 120.0) -> None:
+    """Stop a preset's sweep as Ctrl-C does (SIGINT: it marks its MLflow runs and keeps its finished cells; a
+    terminal's Ctrl-C has reached it already), and wait for it; killed when it has not stopped after ``grace``."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+    try:
+        process.wait(grace)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
 def _child_runs(uri: str, parent: str) -> int:
     from mlflow.tracking import MlflowClient
 
@@ -99,23 +117,34 @@ def _child_runs(uri: str, parent: str) -> int:
     return len(client.search_runs([experiment], f"tags.mlflow.parentRunId = '{parent}'", max_results=50000))
 
 
-def run_fixed(presets, overrides: list[str], work: Path, log=print) -> list[dict]:
-    """Every preset once at one size (``overrides``)."""
+def run_fixed(presets, overrides: list[str], work: Path, log=print, record: RunRecord | None = None) -> list[dict]:
+    """Every preset once at one size (``overrides``); with a ``record``, the presets it holds as finished are
+    not run again, and each finished run is added to it."""
     uri = f"sqlite:///{work / 'mlflow.db'}"
     results = []
     for preset in presets:
-        log(f"gtsweep.reproduce: {preset} ...")
-        results.append(run_preset(preset, [*overrides, *PRESET_OVERRIDES.get(preset, [])], work, uri))
+        done = record.get(preset) if record is not None else None
+        if done is None:
+            log(f"gtsweep.reproduce: {preset} ...")
+            done = _recorded(record, preset, work / preset,
+                             lambda: run_preset(preset, [*overrides, *PRESET_OVERRIDES.get(preset, [])], work, uri))
+        results.append(done)
         _report(results[-1], log)
     return results
 
 
+def _recorded(record: RunRecord | None, key: str, output: Path, start: Callable[[], dict]) -> dict:
+    return start() if record is None else record.run(key, output, start)
+
+
 def run_rounds(presets, needed: Callable[[int, dict[str, dict]], dict[str, list[dict] | None]], work: Path,
-               rounds=ROUNDS, extra: list[str] = (), log=print) -> list[dict]:
+               rounds=ROUNDS, extra: list[str] = (), log=print, record: RunRecord | None = None) -> list[dict]:
     """Rounds of growing counts: round 0 runs every cell of every preset; after round k, ``needed(k, latest)``
     (``latest``: each preset's newest measurements) names the cells round k + 1 runs, per preset the methods of
     each cell (None: all of them; a set of preset names: all of theirs); stops when it names none or after the
-    last round. Returns every run's measurements with its round, counts, cells asked for and extra cells run."""
+    last round. Returns every run's measurements with its round, counts, cells asked for and extra cells run.
+    With a ``record`` (:class:`~gtsweep.orchestration.run_record.RunRecord`), the runs it holds as finished are
+    taken from it (``needed`` judges them again, as it did), and each finished run is added to it."""
     uri, cache = f"sqlite:///{work / 'mlflow.db'}", work / "cache"
     runs, latest, wanted = [], {}, dict.fromkeys(presets)
     for k, counts_per_texture in enumerate(rounds):
@@ -123,15 +152,22 @@ def run_rounds(presets, needed: Callable[[int, dict[str, dict]], dict[str, list[
             break
         log(f"gtsweep.reproduce: round {k + 1} ({counts_per_texture} per texture): {', '.join(sorted(wanted))}")
         for preset in [p for p in presets if p in wanted]:
-            out, cut, extra_cells = work / f"round{k + 1}" / preset, [], 0
-            if preset in latest:
-                carry(latest[preset]["output"], out)
-                if wanted[preset] is not None:
-                    cut, extra_cells = restriction(cells_of(latest[preset]["output"]), wanted[preset])
-            overrides = [*round_overrides(counts_per_texture), *extra, *PRESET_OVERRIDES.get(preset, []), *cut]
-            result = run_preset(preset, overrides, work / f"round{k + 1}", uri, cache)
-            result.update(round=k + 1, counts=list(counts_per_texture), extra_cells=extra_cells,
-                          cells_needed=result["cells"] - extra_cells)
+            key = f"round{k + 1}/{preset}"
+            result = record.get(key) if record is not None else None
+            if result is None:
+                out, cut, extra_cells = work / f"round{k + 1}" / preset, [], 0
+                if preset in latest:
+                    carry(latest[preset]["output"], out)
+                    if wanted[preset] is not None:
+                        cut, extra_cells = restriction(cells_of(latest[preset]["output"]), wanted[preset])
+                overrides = [*round_overrides(counts_per_texture), *extra, *PRESET_OVERRIDES.get(preset, []), *cut]
+
+                def start(preset=preset, overrides=overrides, extra_cells=extra_cells):
+                    result = run_preset(preset, overrides, work / f"round{k + 1}", uri, cache)
+                    return {**result, "round": k + 1, "counts": list(counts_per_texture), "extra_cells": extra_cells,
+                            "cells_needed": result["cells"] - extra_cells}
+
+                result = _recorded(record, key, out, start)
             runs.append(result)
             latest[preset] = result
             _report(result, log)
@@ -142,10 +178,11 @@ def run_rounds(presets, needed: Callable[[int, dict[str, dict]], dict[str, list[
 
 
 def carry(previous: Path, out: Path) -> None:
-    """Start ``out`` from a copy of a previous run's cells (rows, summaries and what each cell's rows cover)."""
+    """Start ``out`` from a copy of a previous run's cells (rows, summaries and what each cell's rows cover); a
+    file ``out`` already has (an interrupted attempt's newer cell) is kept."""
     for part in ("cells", "reuse"):
         if (Path(previous) / part).is_dir():
-            shutil.copytree(Path(previous) / part, out / part, dirs_exist_ok=True)
+            shutil.copytree(Path(previous) / part, out / part, dirs_exist_ok=True, copy_function=copy_absent)
 
 
 def cells_of(output: Path) -> list[dict]:
