@@ -13,6 +13,7 @@ textures x (4 incremental + 4 absolute) pairs, 4 detectors x 4 descriptors (32 c
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import tempfile
 import time
@@ -22,7 +23,7 @@ import cv2
 import numpy as np
 
 from gtsweep.cli.overrides import compose_config
-from gtsweep.core.memory import PeakMemory
+from gtsweep.core.memory import PeakMemory, cpu_split, tree_cpu
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.executor import connect, make_executor
 from gtsweep.orchestration.grid import build_grid
@@ -78,13 +79,16 @@ def floor(cfg, threads: int) -> float:
 
 
 def timed_sweep(cfg, out: Path):
-    """Run the sweep; its wall time, outcome, and the peak memory of the driver and each Ray worker."""
-    start = time.perf_counter()
+    """Run the sweep; its wall time, outcome, and the peak memory and CPU seconds of the driver, the Ray workers
+    and Ray's own processes (on 2 cores, what the driver and Ray use is taken from the workers)."""
+    start, cpu = time.perf_counter(), tree_cpu(os.getpid())
     with PeakMemory() as memory:
         outcome = run_sweep(cfg, out)
     seconds = time.perf_counter() - start
+    used = cpu_split(cpu, tree_cpu(os.getpid()), os.getpid())
     return seconds, outcome, (f"    {memory.line()}; {outcome.stats.detection_tasks} detection + "
-                              f"{outcome.stats.pairing_tasks} pairing tasks")
+                              f"{outcome.stats.pairing_tasks} pairing tasks\n    CPU: driver {used['driver']:.2f} s, "
+                              f"Ray workers {used['workers']:.2f} s, Ray's own processes {used['ray']:.2f} s")
 
 
 def ray_start(cfg) -> float:

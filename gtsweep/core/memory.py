@@ -1,4 +1,4 @@
-"""Peak resident memory of a process tree (the driver, Ray's own processes and its workers), sampled from /proc.
+"""Peak resident memory and CPU time of a process tree (the driver, Ray's own processes and its workers), from /proc.
 
 Used by ``make reproduce`` (the whole tree of each preset's process) and by ``benchmarks/`` (the driver and each
 Ray worker apart). Linux only: elsewhere every figure is 0.
@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 
 def _is_worker(pid: int) -> bool:
@@ -22,10 +23,11 @@ def _is_worker(pid: int) -> bool:
     return command.startswith(b"ray::") or b"default_worker.py" in command
 
 
-def tree_rss(pid: int) -> dict[int, int]:
-    """Resident bytes of ``pid`` and each of its descendants, by pid (empty where /proc is missing)."""
+def _tree(pid: int, columns: tuple[int, ...], scale: float) -> dict[int, float]:
+    """The sum of fields ``columns`` of /proc/<p>/stat (counted after the command name) times ``scale``, for
+    ``pid`` and each of its descendants, by pid (empty where /proc is missing)."""
     children: dict[int, list[int]] = {}
-    rss: dict[int, int] = {}
+    values: dict[int, float] = {}
     proc = Path("/proc")
     if not proc.is_dir():
         return {}
@@ -35,16 +37,36 @@ def tree_rss(pid: int) -> dict[int, int]:
         try:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
             children.setdefault(int(fields[1]), []).append(int(entry.name))
-            rss[int(entry.name)] = int(fields[21]) * _PAGE
+            values[int(entry.name)] = sum(int(fields[c]) for c in columns) * scale
         except (OSError, IndexError, ValueError):
             continue
     found, stack = {}, [pid]
     while stack:
         p = stack.pop()
-        if p in rss:
-            found[p] = rss[p]
+        if p in values:
+            found[p] = values[p]
         stack += children.get(p, [])
     return found
+
+
+def tree_rss(pid: int) -> dict[int, int]:
+    """Resident bytes of ``pid`` and each of its descendants, by pid (empty where /proc is missing)."""
+    return {p: int(v) for p, v in _tree(pid, (21,), _PAGE).items()}
+
+
+def tree_cpu(pid: int) -> dict[int, float]:
+    """CPU seconds (user + system) each process of ``pid``'s tree has used so far, by pid."""
+    return _tree(pid, (11, 12), 1 / _TICKS)
+
+
+def cpu_split(before: dict[int, float], after: dict[int, float], driver: int) -> dict[str, float]:
+    """CPU seconds used between two :func:`tree_cpu` snapshots, split into the ``driver`` process, Ray's workers
+    and everything else in the tree (Ray's own processes: GCS, raylet, agents)."""
+    split = {"driver": 0.0, "workers": 0.0, "ray": 0.0}
+    for p, seconds in after.items():
+        kind = "driver" if p == driver else "workers" if _is_worker(p) else "ray"
+        split[kind] += seconds - before.get(p, 0.0)
+    return split
 
 
 @dataclass
