@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Callable
@@ -94,14 +95,12 @@ class RunRecord:
 
 def last_write(directory: Path) -> float | None:
     """The newest modification time of any file in ``directory`` and of its log beside it (``<name>.log``)."""
-    times = [p.stat().st_mtime for p in [*Path(directory).rglob("*"), Path(f"{directory}.log")] if p.is_file()] \
-        if Path(directory).exists() or Path(f"{directory}.log").exists() else []
-    return max(times) if times else None
+    times = [p.stat().st_mtime for p in [*Path(directory).rglob("*"), Path(f"{directory}.log")] if p.is_file()]
+    return max(times, default=None)
 
 
 def copy_absent(source: str, destination: str) -> str:
     """``shutil.copytree``'s copy function that keeps a file already at ``destination`` (a resumed round's own
     newer cells are not replaced by the previous round's)."""
-    import shutil
 
     return destination if os.path.exists(destination) else shutil.copy2(source, destination)
