@@ -102,5 +102,4 @@ def last_write(directory: Path) -> float | None:
 def copy_absent(source: str, destination: str) -> str:
     """``shutil.copytree``'s copy function that keeps a file already at ``destination`` (a resumed round's own
     newer cells are not replaced by the previous round's)."""
-
     return destination if os.path.exists(destination) else shutil.copy2(source, destination)
