@@ -27,7 +27,8 @@ class RunRecord:
     def __init__(self, path: Path, plan: dict, clock: Callable[[], float] = time.time):
         self.path, self.plan, self.clock = Path(path), plan, clock
         self.finished: dict[str, dict] = {}  # key -> the run's measurements
-        self.attempts: dict[str, dict] = {}  # key -> {"output", "started", "ended" (None: killed), "earlier_s"}
+        # key -> {"output", "started", "ended" (None: killed), "earlier_s" (its cut attempts before), "tries"}
+        self.attempts: dict[str, dict] = {}
 
     @classmethod
     def resume(cls, path: Path, plan: dict, clock: Callable[[], float] = time.time) -> "RunRecord":
@@ -63,7 +64,7 @@ class RunRecord:
         its earlier interrupted attempts added and their number (``attempts``)."""
         earlier = self.attempts.get(key)
         earlier_s = 0.0 if earlier is None else earlier["earlier_s"] + self._attempt_seconds(earlier)
-        tries = 1 if earlier is None else earlier.get("tries", 1) + 1
+        tries = 1 if earlier is None else earlier["tries"] + 1
         self.attempts[key] = {"output": str(output), "started": self.clock(), "ended": None,
                               "earlier_s": earlier_s, "tries": tries}
         self.save()
