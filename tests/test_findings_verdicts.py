@@ -216,3 +216,18 @@ def test_each_finding_reads_only_the_cells_it_declares(index, case):
     everything = check(hypothesis, {hypothesis.preset: frame}, {hypothesis.preset: fakes.views}, ALPHA)
     declared = check(hypothesis, {hypothesis.preset: chosen}, {hypothesis.preset: views}, ALPHA)
     assert (declared.verdict, declared.evidence) == (everything.verdict, everything.evidence)
+
+
+@pytest.mark.parametrize("kind, d, distance", [("among", 0.02, 0.02), ("among", -0.01, 0.02), ("among", -0.05, 0.02),
+                                               ("beats", -0.025, 0.025), ("beats", 0.005, 0.025),
+                                               ("below", 0.01, 0.02), ("within", 0.045, 0.015)])
+def test_images_to_decide_aims_at_the_verdict_reached_first(kind, d, distance):
+    """At the observed effect the verdict whose boundary lies farthest from the estimate is decided first: e.g.
+    AMONG at +0.02 with margin 0.03 holds (0.02 from 0) long before it is equivalent (0.01 inside +0.03); BEATS at
+    -0.025 fails (0.025 below 0) before it is equivalent. n (z_0.95 + z_0.8)² (SE / distance)², hand-worked."""
+    from gtsweep.evaluation.statistics import Comparison
+    from gtsweep.evaluation.verdicts import Claim, images_to_decide
+
+    claim = Claim("x", Comparison("t", d, 0.5, n=12, se=0.01, df=11), kind, 0.03)
+    z = 1.6448536269514722 + 0.8416212335729143
+    assert images_to_decide(claim, 0.05) == pytest.approx(12 * (z * 0.01 / distance) ** 2)

@@ -117,17 +117,26 @@ def decide(tests: list[Claim], alpha: float) -> Verdict:
 
 
 def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
-    """How many clusters (images or pairs) this comparison would need for its nearest verdict at the observed
-    effect and SE (normal approximation, ``power``): n (z_alpha + z_power)² / z_observed² for the smallest
-    distance of the estimate from a decision boundary. NaN without an SE or with the estimate on a boundary."""
+    """How many clusters (images or pairs) this comparison would need to reach a verdict at the observed effect
+    and SE (normal approximation, ``power``, SE shrinking as 1 / sqrt(n)): n (z_alpha + z_power)² / z_observed²,
+    z_observed = distance / SE for the verdict reached soonest, the one whose decision boundary lies FARTHEST
+    from the estimate on the side it already is (the largest distance needs the fewest clusters). Reachable
+    verdicts at an estimate d with margin delta: BEATS: holds / fails beyond 0 (distance |d|), equivalent inside
+    ±delta (delta - |d|); AMONG: holds above 0 (d), equivalent inside ±delta (delta - |d|), fails below -delta
+    (-delta - d); BELOW: either side of delta; WITHIN: inside or outside ±delta. NaN without an SE or with the
+    estimate on a boundary."""
     c = test.comparison
     if not (math.isfinite(c.se) and c.se > 0 and c.n > 1 and math.isfinite(c.difference)):
         return math.nan
     d, delta = (c.centre if math.isfinite(c.centre) else c.difference), test.margin
-    if test.kind in (BEATS, AMONG):  # heading for equivalence inside the margin, else for beyond 0 (or -delta)
-        distance = delta - abs(d) if abs(d) < delta else abs(d) - delta if test.kind == AMONG and d < 0 else abs(d)
+    if test.kind == BEATS:
+        distance = max(abs(d), delta - abs(d))
+    elif test.kind == AMONG:
+        distance = max(d, delta - abs(d), -delta - d)
+    elif test.kind == BELOW:
+        distance = abs(d - delta)
     else:
-        distance = abs(d - delta) if test.kind == BELOW else abs(delta - abs(d))
+        distance = abs(delta - abs(d))
     if distance <= 0:
         return math.nan
     z = stats.norm.ppf(1 - alpha) + stats.norm.ppf(power)
