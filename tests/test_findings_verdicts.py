@@ -149,6 +149,7 @@ def test_a_rival_picked_from_the_data_is_tested_on_the_other_half_of_the_images(
     found = check(FINDINGS[2], {"table3_detectors": table3_repeatability("holds").frame()},
                   {"table3_detectors": table3_repeatability("holds").views}, ALPHA)
     assert "best other on half 0" in found.evidence and "n = 12" in found.evidence  # 24 images, half tested
+    assert found.n == 24  # the finding draws on all 24: "n images would decide it" counts both halves
 
 
 def test_halves_alternate_textures_with_one_image_each_and_stay_when_images_are_added():
@@ -231,3 +232,14 @@ def test_images_to_decide_aims_at_the_verdict_reached_first(kind, d, distance):
     claim = Claim("x", Comparison("t", d, 0.5, n=12, se=0.01, df=11), kind, 0.03)
     z = 1.6448536269514722 + 0.8416212335729143
     assert images_to_decide(claim, 0.05) == pytest.approx(12 * (z * 0.01 / distance) ** 2)
+
+
+def test_images_to_decide_counts_both_halves_when_one_half_is_tested():
+    """A rival picked on half 0 and tested on half 1: the rounds add images to both halves, so the images that
+    would decide it are twice the tested half's."""
+    from gtsweep.evaluation.statistics import Comparison
+    from gtsweep.evaluation.verdicts import Claim, images_to_decide
+
+    comparison = Comparison("t", 0.01, 0.5, n=12, se=0.01, df=11)
+    whole, half = (images_to_decide(Claim("x", comparison, "beats", 0.03, share), 0.05) for share in (1.0, 0.5))
+    assert half == pytest.approx(2 * whole)

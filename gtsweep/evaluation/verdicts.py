@@ -45,6 +45,9 @@ class Claim:
     comparison: Comparison
     kind: str
     margin: float
+    #: the share of the finding's clusters this comparison tests (0.5 when a rival picked on one half of the
+    #: images is tested on the other): the images to decide it are counted over all of them
+    share: float = 1.0
 
     def p_values(self) -> tuple[float, float, float]:
         """(p of *holds*, p of *fails*, p of *equivalent*), each one-sided; 1.0 where not applicable."""
@@ -124,7 +127,8 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     verdicts at an estimate d with margin delta: BEATS: holds / fails beyond 0 (distance |d|), equivalent inside
     ±delta (delta - |d|); AMONG: holds above 0 (d), equivalent inside ±delta (delta - |d|), fails below -delta
     (-delta - d); BELOW: either side of delta; WITHIN: inside or outside ±delta. NaN without an SE or with the
-    estimate on a boundary."""
+    estimate on a boundary. Counted over all the clusters the finding draws on (the tested ones / ``share``), as
+    the rounds add images to both halves."""
     c = test.comparison
     if not (math.isfinite(c.se) and c.se > 0 and c.n > 1 and math.isfinite(c.difference)):
         return math.nan
@@ -140,4 +144,4 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     if distance <= 0:
         return math.nan
     z = stats.norm.ppf(1 - alpha) + stats.norm.ppf(power)
-    return float(c.n * (z * c.se / distance) ** 2)
+    return float(c.n / test.share * (z * c.se / distance) ** 2)

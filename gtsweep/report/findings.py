@@ -64,8 +64,8 @@ class Finding:
     evidence: str = ""
     margin: str = ""
     correction: str = ""
-    n: int = 0
-    to_decide: float = math.nan  # clusters (per finding) that would decide it at the observed effect
+    n: int = 0  # clusters (images or pairs) the finding draws on: both halves where a rival is picked on one
+    to_decide: float = math.nan  # clusters (counted as n is) that would decide it at the observed effect
     parts: list = field(default_factory=list)
 
 
@@ -82,7 +82,7 @@ def _pair(data: Data, label, kind, margin, a, b, metric, sign=1, where_a=None, w
     result = compare(a, b, metric, data.views, where_a, where_b, half, 1 - 2 * data.alpha) if data.views else None
     if result is None:
         return f"{label}: {data.value(a, metric, where_a):.2f} vs {data.value(b, metric, where_b or where_a):.2f}"
-    return Claim(label, _oriented(result, sign), kind, margin)
+    return Claim(label, _oriented(result, sign), kind, margin, 1.0 if half is None else 0.5)
 
 
 def nms_beats_other_selectors(data: Data):
@@ -329,7 +329,8 @@ def judge(hypothesis: Hypothesis, data: Data) -> Finding:
     need = [verdicts.images_to_decide(t, data.alpha) for t, v in zip(parts, result.parts())
             if v == verdicts.UNDECIDED]
     need = [x for x in need if math.isfinite(x)]
-    return replace(base, verdict=result.verdict, evidence="; ".join(lines), n=min(t.comparison.n for t in parts),
+    return replace(base, verdict=result.verdict, evidence="; ".join(lines),
+                   n=min(round(t.comparison.n / t.share) for t in parts),
                    correction=f"Holm over {len(parts)}" if len(parts) > 1 else "none (one comparison)",
                    to_decide=max(need) if need and result.verdict == verdicts.UNDECIDED else math.nan,
                    parts=list(parts))
