@@ -243,3 +243,13 @@ def test_images_to_decide_counts_both_halves_when_one_half_is_tested():
     comparison = Comparison("t", 0.01, 0.5, n=12, se=0.01, df=11)
     whole, half = (images_to_decide(Claim("x", comparison, "beats", 0.03, share), 0.05) for share in (1.0, 0.5))
     assert half == pytest.approx(2 * whole)
+
+
+def test_an_image_is_in_the_same_half_in_every_entry_even_where_a_cell_misses_a_texture():
+    """The halves rank the textures of the whole data set, not of one cell's rows: a rival whose cell has no rows
+    for one texture (t0) still has its half 1 on the named detectors' half 1 (2 images per texture on t1-t5)."""
+    fakes = table3_repeatability("holds")
+    rival = next(k for k in fakes.views if k.startswith("harris_laplace"))
+    fakes.views[rival] = fakes.views[rival][fakes.views[rival]["texture"] != "t0"]
+    found = check(FINDINGS[2], {"table3_detectors": fakes.frame()}, {"table3_detectors": fakes.views}, ALPHA)
+    assert found.verdict == "holds" and found.evidence.count("n = 10") == 3, found.evidence

@@ -79,7 +79,8 @@ def _oriented(c: statistics.Comparison, sign: int) -> statistics.Comparison:
 def _pair(data: Data, label, kind, margin, a, b, metric, sign=1, where_a=None, where_b=None, half=None):
     """A paired comparison of entries A and B as a :class:`Claim` (oriented by ``sign``), or a string with the
     point values when there are no per-view rows."""
-    result = compare(a, b, metric, data.views, where_a, where_b, half, 1 - 2 * data.alpha) if data.views else None
+    result = compare(a, b, metric, data.views, where_a, where_b, half, 1 - 2 * data.alpha, data.textures) \
+        if data.views else None
     if result is None:
         return f"{label}: {data.value(a, metric, where_a):.2f} vs {data.value(b, metric, where_b or where_a):.2f}"
     return Claim(label, _oriented(result, sign), kind, margin, 1.0 if half is None else 0.5)

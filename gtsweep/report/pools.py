@@ -16,7 +16,7 @@ import math
 
 import pandas as pd
 
-from gtsweep.report.samples import estimate
+from gtsweep.report.samples import estimate, textures_of
 
 ORIENTED = frozenset({"sift", "surf", "akaze", "orb", "brisk"})
 UNORIENTED = frozenset({"agast", "censure", "fast", "gftt", "harris_laplace", "msd", "mser"})
@@ -35,6 +35,7 @@ class Data:
         ok = frame is not None and len(frame) and "status" in frame
         self.cells = frame[frame["status"] == "ok"] if ok else pd.DataFrame()
         self.views, self.alpha = views, alpha
+        self.textures = textures_of(views)  # the data set's: an image's half is the same in every entry
 
     def select(self, transforms=None, **methods) -> pd.DataFrame:
         part = self.cells
@@ -47,7 +48,8 @@ class Data:
         return part
 
     def value(self, cells, metric, where=None, half=None) -> float:
-        return estimate(cells, metric, self.views, where, half)[0] if len(cells) else math.nan
+        return estimate(cells, metric, self.views, where, half, textures=self.textures)[0] if len(cells) \
+            else math.nan
 
 
 def best(data: Data, entries: dict[str, pd.DataFrame], metric: str, lowest: bool = False, half=None):

@@ -47,15 +47,26 @@ def half_of(image: str, texture_rank: int = 0) -> int:
     return (number + texture_rank) % 2
 
 
-def _halves(rows: pd.DataFrame) -> np.ndarray:
-    rank = {t: i for i, t in enumerate(sorted(rows["texture"].astype(str).unique()))}
+def textures_of(views: Views | None) -> list[str]:
+    """The data set's textures (sorted by name): those of every cell's per-view rows."""
+    found = (v["texture"].astype(str).unique() for v in (views or {}).values() if "texture" in v)
+    return sorted(set().union(*found))
+
+
+def _halves(rows: pd.DataFrame, textures: list[str] | None) -> np.ndarray:
+    """:func:`half_of` of each row, its texture ranked among ``textures`` (the data set's, so that an image is in
+    the same half in every entry, also where a cell has no rows of some texture); None: the rows' own."""
+    names = rows["texture"].astype(str)
+    known = list(textures) if textures else []
+    rank = {t: i for i, t in enumerate(known + sorted(set(names.unique()) - set(known)))}
     return np.array([half_of(i, rank[t]) for i, t in zip(rows["image"].astype(str), rows["texture"].astype(str))])
 
 
 def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
-          half: int | None = None) -> pd.DataFrame | None:
+          half: int | None = None, textures: list[str] | None = None) -> pd.DataFrame | None:
     """Columns cluster, stratum, sum, count of an entry's views (None when a cell's rows are missing); with
-    ``half``, only that half's clusters (:func:`half_of`)."""
+    ``half``, only that half's clusters (:func:`half_of`, textures ranked among ``textures``:
+    :func:`textures_of`)."""
     declared = schema.METRICS[metric]
     parts = []
     for cell in cells.itertuples(index=False):
@@ -77,7 +88,7 @@ def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
         cluster = rows["texture"].astype(str) + "/" + rows["image"].astype(str)
         part = pd.DataFrame({"cluster": cluster, "stratum": f"{cell.transform}|" + repeat,
                              "sum": num.where(keep, 0.0), "count": den.where(keep, 0.0)})
-        parts.append(part if half is None else part[_halves(rows) == half])
+        parts.append(part if half is None else part[_halves(rows, textures) == half])
     return pd.concat(parts, ignore_index=True) if parts else None
 
 
@@ -91,23 +102,24 @@ def _matrices(long: pd.DataFrame, clusters=None, strata=None) -> tuple[np.ndarra
 
 
 def matrices(cells: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
-             half: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+             half: int | None = None, textures: list[str] | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """(sums, counts), clusters x strata, of an entry's per-view rows; None without them."""
     if not views or metric not in schema.METRICS or not len(cells):
         return None
-    long = _long(cells, metric, views, where, half)
+    long = _long(cells, metric, views, where, half, textures)
     return None if long is None or long.empty else _matrices(long)
 
 
 def estimate(cells: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
-             half: int | None = None, confidence: float = statistics.CONFIDENCE) -> tuple[float, float, float]:
+             half: int | None = None, confidence: float = statistics.CONFIDENCE,
+             textures: list[str] | None = None) -> tuple[float, float, float]:
     """``(value, low, high)`` of an entry made of ``cells`` (rows of :func:`~gtsweep.report.tables.frame`):
     from the per-view rows when every cell has them (:func:`~gtsweep.evaluation.statistics.clustered_interval`:
     a t interval over images, a design-effect Wilson interval for a rate), else a one-cell entry's own interval,
     else none."""
     declared = schema.METRICS.get(metric)
     own = len(cells) == 1 and where is None and half is None and f"{metric}_ci_low" in cells
-    long = _long(cells, metric, views, where, half) if views and declared is not None and len(cells) else None
+    long = _long(cells, metric, views, where, half, textures) if views and declared is not None and len(cells) else None
     if long is not None and not long.empty:
         sums, counts = _matrices(long)
         value = statistics.clustered_mean(sums, counts)
@@ -124,15 +136,17 @@ def estimate(cells: pd.DataFrame, metric: str, views: Views | None, where: Mappi
 
 def compare(a: pd.DataFrame, b: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
             where_b: Mapping | None = None, half: int | None = None,
-            confidence: float = statistics.CONFIDENCE) -> statistics.Comparison | None:
+            confidence: float = statistics.CONFIDENCE,
+            textures: list[str] | None = None) -> statistics.Comparison | None:
     """Paired test of entry A against entry B on the images (pairs) both have: the paired t over images of
     :func:`~gtsweep.evaluation.statistics.clustered_difference` (one method for rates, means and ratios). None
     without per-view rows. ``where`` selects A's views (and B's, unless ``where_b`` does), e.g. a reference
-    feature count; ``half`` restricts both to one half of the images (:func:`half_of`)."""
+    feature count; ``half`` restricts both to one half of the images (:func:`half_of`; ``textures``: the data
+    set's, :func:`textures_of`)."""
     if not views or metric not in schema.METRICS:
         return None
-    long_a = _long(a, metric, views, where, half)
-    long_b = _long(b, metric, views, where if where_b is None else where_b, half)
+    long_a = _long(a, metric, views, where, half, textures)
+    long_b = _long(b, metric, views, where if where_b is None else where_b, half, textures)
     if long_a is None or long_b is None:
         return None
     clusters = sorted(set(long_a["cluster"]) & set(long_b["cluster"]))
