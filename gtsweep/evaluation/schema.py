@@ -287,7 +287,7 @@ def headline_rows(rows: pd.DataFrame, experiment: str | None) -> pd.DataFrame:
     return rows[values == largest]
 
 
-def _array(values: pd.Series) -> np.ndarray:
+def as_floats(values: pd.Series) -> np.ndarray:
     """:func:`_numbers` as a float64 NumPy array (a float64 column as it is, without a copy)."""
     if values.dtype == np.float64:
         return values.to_numpy()
@@ -297,11 +297,11 @@ def _array(values: pd.Series) -> np.ndarray:
 def aggregate(metric: Metric, rows: pd.DataFrame) -> float:
     """The metric over ``rows`` (a cell's views, or one step's) by its aggregation."""
     if metric.aggregation == "ratio":
-        num, den = (_array(rows[c]) for c in metric.of)
+        num, den = (as_floats(rows[c]) for c in metric.of)
         keep = np.isfinite(num) & np.isfinite(den)
         total = den[keep].sum()
         return float(num[keep].sum() / total) if total else math.nan
-    values = _array(rows[metric.name])
+    values = as_floats(rows[metric.name])
     values = values[np.isfinite(values)]
     if metric.aggregation == "rate" and not np.isin(values, (0.0, 1.0)).all():
         raise GtsweepError(f"metric '{metric.name}' is a rate in {SCHEMA_FILE} but has values other than 0 and 1")
@@ -319,11 +319,11 @@ def interval(metric: Metric, rows: pd.DataFrame, seed: int = 0) -> tuple[float, 
     from gtsweep.evaluation import statistics
 
     if metric.aggregation == "rate":
-        values = _array(rows[metric.name])
+        values = as_floats(rows[metric.name])
         values = values[np.isfinite(values)]
         return statistics.wilson_interval(int(values.sum()), len(values))
     if metric.aggregation == "ratio":
-        num, den = (_array(rows[c]) for c in metric.of)
+        num, den = (as_floats(rows[c]) for c in metric.of)
         keep = np.isfinite(num) & np.isfinite(den)
         return statistics.ratio_interval(num[keep], den[keep], seed=seed)
-    return statistics.bootstrap_interval(_array(rows[metric.name]), seed=seed)
+    return statistics.bootstrap_interval(as_floats(rows[metric.name]), seed=seed)

@@ -49,7 +49,7 @@ def half_of(image: str, texture_rank: int = 0) -> int:
 
 def textures_of(views: Views | None) -> list[str]:
     """The data set's textures (sorted by name): those of every cell's per-view rows."""
-    found = (v["texture"].astype(str).unique() for v in (views or {}).values() if "texture" in v)
+    found = (map(str, v["texture"].unique()) for v in (views or {}).values() if "texture" in v)
     return sorted(set().union(*found))
 
 
@@ -68,37 +68,48 @@ def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
     ``half``, only that half's clusters (:func:`half_of`, textures ranked among ``textures``:
     :func:`textures_of`)."""
     declared = schema.METRICS[metric]
+    needed = declared.of or (metric,)
+    keys = cells["key"] if "key" in cells else [None] * len(cells)
     parts = []
-    for cell in cells.itertuples(index=False):
-        rows = views.get(getattr(cell, "key", None))
+    for key, transform in zip(keys, cells["transform"]):
+        rows = views.get(key)
         if rows is None or rows.empty:
             return None
-        rows = schema.with_derived(rows)
+        if not all(c in rows for c in needed):  # a derived metric: computed from its input columns
+            rows = schema.with_derived(rows)
         for column, value in (where or {}).items():
             rows = rows[np.isclose(pd.to_numeric(rows[column], errors="coerce"), value)]
         if not schema.aggregable(declared, rows) or not all(c in rows for c in CLUSTER):
             return None
-        if declared.of:
-            num, den = (pd.to_numeric(rows[c], errors="coerce") for c in declared.of)
-        else:
-            num = pd.to_numeric(rows[metric], errors="coerce")
-            den = pd.Series(1.0, index=rows.index)
+        num, den = (schema.as_floats(rows[c]) for c in declared.of) if declared.of else \
+            (schema.as_floats(rows[metric]), np.ones(len(rows)))
         keep = np.isfinite(num) & np.isfinite(den)
-        repeat = rows["repeat"].astype(str) if "repeat" in rows else ""
-        cluster = rows["texture"].astype(str) + "/" + rows["image"].astype(str)
-        part = pd.DataFrame({"cluster": cluster, "stratum": f"{cell.transform}|" + repeat,
-                             "sum": num.where(keep, 0.0), "count": den.where(keep, 0.0)})
-        parts.append(part if half is None else part[_halves(rows, textures) == half])
-    return pd.concat(parts, ignore_index=True) if parts else None
+        repeat = rows["repeat"].astype(str).to_numpy(object) if "repeat" in rows else np.full(len(rows), "", object)
+        part = {"cluster": (rows["texture"].astype(str) + "/" + rows["image"].astype(str)).to_numpy(object),
+                "stratum": f"{transform}|" + repeat, "sum": np.where(keep, num, 0.0),
+                "count": np.where(keep, den, 0.0)}
+        if half is not None:
+            chosen = _halves(rows, textures) == half
+            part = {name: column[chosen] for name, column in part.items()}
+        parts.append(part)
+    if not parts:
+        return None
+    return pd.DataFrame({name: np.concatenate([part[name] for part in parts]) for name in parts[0]})
 
 
 def _matrices(long: pd.DataFrame, clusters=None, strata=None) -> tuple[np.ndarray, np.ndarray]:
-    table = long.pivot_table(index="cluster", columns="stratum", values=["sum", "count"], aggfunc="sum",
-                             fill_value=0.0)
+    """(sums, counts), ``clusters`` x ``strata`` (default: every one, sorted): each view's sum and count added
+    into its cell; views of a cluster or stratum not listed are left out."""
     clusters = sorted(long["cluster"].unique()) if clusters is None else clusters
     strata = sorted(long["stratum"].unique()) if strata is None else strata
-    pick = lambda name: table[name].reindex(index=clusters, columns=strata, fill_value=0.0).to_numpy(float)
-    return pick("sum"), pick("count")
+    row = pd.Index(clusters).get_indexer(long["cluster"])
+    column = pd.Index(strata).get_indexer(long["stratum"])
+    listed = (row >= 0) & (column >= 0)
+    flat = row[listed] * len(strata) + column[listed]
+    shape = (len(clusters), len(strata))
+    total = lambda name: np.bincount(flat, weights=long[name].to_numpy(float)[listed],  # noqa: E731
+                                     minlength=shape[0] * shape[1]).reshape(shape)
+    return total("sum"), total("count")
 
 
 def matrices(cells: pd.DataFrame, metric: str, views: Views | None, where: Mapping | None = None,
