@@ -56,10 +56,12 @@ def textures_of(views: Views | None) -> list[str]:
 def _halves(rows: pd.DataFrame, textures: list[str] | None) -> np.ndarray:
     """:func:`half_of` of each row, its texture ranked among ``textures`` (the data set's, so that an image is in
     the same half in every entry, also where a cell has no rows of some texture); None: the rows' own."""
-    names = rows["texture"].astype(str)
+    names, images = rows["texture"].astype(str), rows["image"].astype(str)
     known = list(textures) if textures else []
     rank = {t: i for i, t in enumerate(known + sorted(set(names.unique()) - set(known)))}
-    return np.array([half_of(i, rank[t]) for i, t in zip(rows["image"].astype(str), rows["texture"].astype(str))])
+    codes, clusters = pd.factorize(names + "\0" + images)  # once per image, not per view
+    halves = [half_of(image, rank[texture]) for texture, image in (c.split("\0", 1) for c in clusters)]
+    return np.asarray(halves, dtype=int)[codes] if len(codes) else np.zeros(0, dtype=int)
 
 
 def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
