@@ -1,6 +1,8 @@
 """Every finding reaches every verdict it can give: synthetic per-view data where the survey's claim is true
 (holds), violated (fails) and equal within the finding's margin (equivalent; for the equivalence claims "about"
 and "stops growing", whose *holds* is the within-margin case: too few images, undecided)."""
+import math
+
 import numpy as np
 import pytest
 from finding_fakes import Fakes, level, outcomes
@@ -253,3 +255,17 @@ def test_an_image_is_in_the_same_half_in_every_entry_even_where_a_cell_misses_a_
     fakes.views[rival] = fakes.views[rival][fakes.views[rival]["texture"] != "t0"]
     found = check(FINDINGS[2], {"table3_detectors": fakes.frame()}, {"table3_detectors": fakes.views}, ALPHA)
     assert found.verdict == "holds" and found.evidence.count("n = 10") == 3, found.evidence
+
+
+@pytest.mark.parametrize("d, low, high, side", [(-0.02, -0.06, 0.03, -0.04), (0.02, -0.01, 0.07, 0.05),
+                                                (0.09, 0.03, 0.16, -0.06), (-0.09, -0.12, -0.02, 0.07)])
+def test_images_to_decide_reads_a_band_finding_se_off_its_interval(d, low, high, side):
+    """Finding 7 (a rate against a band, decided by its interval): the SE is the half-width of the interval's end
+    that must cross the band's edge over z_0.95; inside, the nearer edge; outside, back over the edge."""
+    from gtsweep.evaluation.statistics import Comparison
+    from gtsweep.evaluation.verdicts import Claim, images_to_decide
+
+    claim = Claim("x", Comparison("wilson", d, math.nan, low, high, n=36), "within", 0.05)
+    z = 1.6448536269514722 + 0.8416212335729143
+    se = abs(side) / 1.6448536269514722
+    assert images_to_decide(claim, 0.05) == pytest.approx(36 * (z * se / abs(0.05 - abs(d))) ** 2)

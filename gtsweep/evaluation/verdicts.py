@@ -126,13 +126,20 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     from the estimate on the side it already is (the largest distance needs the fewest clusters). Reachable
     verdicts at an estimate d with margin delta: BEATS: holds / fails beyond 0 (distance |d|), equivalent inside
     ±delta (delta - |d|); AMONG: holds above 0 (d), equivalent inside ±delta (delta - |d|), fails below -delta
-    (-delta - d); BELOW: either side of delta; WITHIN: inside or outside ±delta. NaN without an SE or with the
-    estimate on a boundary. Counted over all the clusters the finding draws on (the tested ones / ``share``), as
-    the rounds add images to both halves."""
+    (-delta - d); BELOW: either side of delta; WITHIN: inside or outside ±delta. A WITHIN comparison decided by
+    its interval alone (a rate against a band: intervals over clusters) reads its SE off the interval's end that
+    must cross the boundary (its (1 - 2 alpha) half-width / z_(1-alpha)); other interval-only comparisons (a
+    bootstrap over pairings: more images add no pairings) and an estimate on a boundary give NaN. Counted over
+    all the clusters the finding draws on (the tested ones / ``share``), as the rounds add images to both
+    halves."""
     c = test.comparison
-    if not (math.isfinite(c.se) and c.se > 0 and c.n > 1 and math.isfinite(c.difference)):
-        return math.nan
     d, delta = (c.centre if math.isfinite(c.centre) else c.difference), test.margin
+    se = c.se
+    if not math.isfinite(se) and test.kind == WITHIN and math.isfinite(c.low) and math.isfinite(c.high):
+        upper = (abs(d) < delta) == (d >= 0)  # inside and above 0, or outside below -delta: the high end moves
+        se = ((c.high - d) if upper else (d - c.low)) / stats.norm.ppf(1 - alpha)
+    if not (math.isfinite(se) and se > 0 and c.n > 1 and math.isfinite(d)):
+        return math.nan
     if test.kind == BEATS:
         distance = max(abs(d), delta - abs(d))
     elif test.kind == AMONG:
@@ -144,4 +151,4 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     if distance <= 0:
         return math.nan
     z = stats.norm.ppf(1 - alpha) + stats.norm.ppf(power)
-    return float(c.n / test.share * (z * c.se / distance) ** 2)
+    return float(c.n / test.share * (z * se / distance) ** 2)
