@@ -348,30 +348,31 @@ def spent_alpha(alpha: float, fraction: float) -> float:
 def correlation_difference(x1, x2, y, confidence: float = CONFIDENCE, seed: int = 0,
                            resamples: int = RESAMPLES) -> Comparison:
     """Does ``x1`` rank with ``y`` more closely than ``x2`` does? Spearman rho(x1, y) - rho(x2, y) over the same
-    items (pairings), with a seeded paired bootstrap interval; no p-value (judge it by the interval)."""
+    items (pairings), with a seeded paired bootstrap interval; no p-value (judge it by the interval). The
+    resamples grow with the confidence so that each tail holds at least 50 of them (a sequential look at level
+    0.001: 50 000), never fewer than ``resamples``."""
     x1, x2, y = (np.asarray(v, dtype=np.float64) for v in (x1, x2, y))
     keep = np.isfinite(x1) & np.isfinite(x2) & np.isfinite(y)
     x1, x2, y = x1[keep], x2[keep], y[keep]
-
-    def rho(u, v):
-        return math.nan if np.all(u == u[0]) or np.all(v == v[0]) else stats.spearmanr(u, v).statistic
-
-    if len(y) < 3 or not math.isfinite(difference := rho(x1, y) - rho(x2, y)):
+    if len(y) < 3 or not math.isfinite(difference := float(_spearman(x1, y) - _spearman(x2, y))):
         return Comparison("Spearman difference, bootstrap over pairings", math.nan, math.nan, n=len(y))
-    low, high = _paired_percentiles(lambda i: rho(x1[i], y[i]) - rho(x2[i], y[i]), len(y), confidence, seed,
-                                    resamples)
-    return Comparison("Spearman difference, bootstrap over pairings", float(difference), math.nan, low, high,
-                      n=len(y))
+    resamples = max(resamples, math.ceil(50 / ((1 - confidence) / 2)))
+    index = np.random.default_rng(seed).integers(0, len(y), size=(resamples, len(y)))
+    values = _spearman(x1[index], y[index]) - _spearman(x2[index], y[index])
+    if np.isfinite(values).sum() < resamples / 2:  # resamples whose values all tie have no rank correlation
+        low, high = math.nan, math.nan
+    else:
+        tail = 50 * (1 - confidence)
+        low, high = (float(v) for v in np.nanpercentile(values, [tail, 100 - tail]))
+    return Comparison("Spearman difference, bootstrap over pairings", difference, math.nan, low, high, n=len(y))
 
 
-def _paired_percentiles(statistic, n: int, confidence: float, seed: int, resamples: int) -> tuple[float, float]:
-    """Percentile bootstrap of ``statistic(indices)`` over ``n`` paired items, leaving out the resamples where it
-    is undefined (NaN: e.g. a rank correlation of a resample whose values all tie, common with success rates of
-    1.0), which ``scipy.stats.bootstrap`` cannot do; (nan, nan) when under half of the resamples are defined."""
-    index = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
-    values = np.array([statistic(i) for i in index], dtype=np.float64)
-    if np.isfinite(values).sum() < resamples / 2:
-        return math.nan, math.nan
-    tail = 50 * (1 - confidence)
-    low, high = np.nanpercentile(values, [tail, 100 - tail])
-    return float(low), float(high)
+def _spearman(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Spearman's rho of ``u`` and ``v`` along their last axis (average ranks for ties, as scipy.stats.spearmanr);
+    NaN where either is constant. Every bootstrap resample at once (one row each)."""
+    ranks_u, ranks_v = (stats.rankdata(w, axis=-1) for w in (u, v))
+    ranks_u -= ranks_u.mean(axis=-1, keepdims=True)
+    ranks_v -= ranks_v.mean(axis=-1, keepdims=True)
+    scale = np.sqrt((ranks_u ** 2).sum(axis=-1) * (ranks_v ** 2).sum(axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(scale > 0, (ranks_u * ranks_v).sum(axis=-1) / np.where(scale > 0, scale, 1.0), np.nan)

@@ -10,13 +10,15 @@ A comparison's ``difference`` is oriented so that a positive value is the survey
   worse by more than delta;
 - :data:`BELOW` "A - B stays below delta" (e.g. success stops growing): *holds* when A - B < delta, *fails*
   when A - B > delta (one-sided tests at the margin);
+- :data:`ABOVE` "A - B exceeds delta" (e.g. success is low: it drops by more than "similar"): *holds* when
+  A - B > delta, *fails* when A - B < delta (one-sided tests at the margin);
 - :data:`WITHIN` "A is about x": *holds* when -delta < A - x < delta (TOST), *fails* when it lies outside.
 
 The finding's verdict: *fails* when any comparison's failure test is significant after Holm's correction across
 the finding's comparisons; *holds* when every comparison holds (intersection-union test: each at ``alpha``, no
 correction needed, Berger 1982); *equivalent* when every comparison holds or is equivalent and at least one is
-equivalent; else *undecided*. BELOW and WITHIN claims are equivalence claims: their *holds* already means
-"within the margin", they never read *equivalent*.
+equivalent; else *undecided*. BELOW, ABOVE and WITHIN claims are tests at the margin: their *holds* already
+says where the difference lies against it, they never read *equivalent*.
 
 Comparisons with a standard error use t tests on its degrees of freedom; comparisons with only an interval
 (a bootstrap over pairings, a rate's Wilson interval) are decided by their (1 - 2 alpha) interval, which is the
@@ -32,7 +34,7 @@ from scipy import stats
 
 from gtsweep.evaluation.statistics import Comparison, holm
 
-BEATS, AMONG, BELOW, WITHIN = "beats", "among", "below", "within"
+BEATS, AMONG, BELOW, ABOVE, WITHIN = "beats", "among", "below", "above", "within"
 HOLDS, FAILS, EQUIVALENT, UNDECIDED = "holds", "fails", "equivalent", "undecided"
 DECIDED = (HOLDS, FAILS, EQUIVALENT)
 
@@ -72,6 +74,8 @@ class Claim:
             return above(0.0), below(-delta), inside
         if self.kind == BELOW:
             return below(delta), above(delta), 1.0
+        if self.kind == ABOVE:
+            return above(delta), below(delta), 1.0
         if self.kind == WITHIN:
             return inside, min(above(delta), below(-delta)), 1.0
         raise ValueError(f"unknown kind of claim {self.kind!r}")
@@ -126,7 +130,7 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     from the estimate on the side it already is (the largest distance needs the fewest clusters). Reachable
     verdicts at an estimate d with margin delta: BEATS: holds / fails beyond 0 (distance |d|), equivalent inside
     ±delta (delta - |d|); AMONG: holds above 0 (d), equivalent inside ±delta (delta - |d|), fails below -delta
-    (-delta - d); BELOW: either side of delta; WITHIN: inside or outside ±delta. A WITHIN comparison decided by
+    (-delta - d); BELOW, ABOVE: either side of delta; WITHIN: inside or outside ±delta. A WITHIN comparison decided by
     its interval alone (a rate against a band: intervals over clusters) reads its SE off the interval's end that
     must cross the boundary (its (1 - 2 alpha) half-width / z_(1-alpha)); other interval-only comparisons (a
     bootstrap over pairings: more images add no pairings) and an estimate on a boundary give NaN. Counted over
@@ -144,7 +148,7 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
         distance = max(abs(d), delta - abs(d))
     elif test.kind == AMONG:
         distance = max(d, delta - abs(d), -delta - d)
-    elif test.kind == BELOW:
+    elif test.kind in (BELOW, ABOVE):
         distance = abs(d - delta)
     else:
         distance = abs(delta - abs(d))

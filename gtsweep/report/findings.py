@@ -23,7 +23,7 @@ import pandas as pd
 
 from gtsweep.evaluation import statistics, verdicts
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.evaluation.verdicts import AMONG, BEATS, BELOW, WITHIN, Claim
+from gtsweep.evaluation.verdicts import ABOVE, AMONG, BEATS, BELOW, WITHIN, Claim
 from gtsweep.report.pools import (EVERY_CELL, ORIENTED, PLAIN_DESCRIPTORS, SURVEY_VARIANT, UNORIENTED, Data, best,
                                   by_count, cells_where, detection_cells, keeps_all, median_entry, pairings,
                                   survey_selector, table3)
@@ -34,7 +34,8 @@ SYNTHETIC = tuple(TRANSFORMS)
 #: Margins, each from the survey's wording or numbers (docs/statistics_design.md):
 REPEATABILITY_MARGIN = 0.01  # Tables 2-3 print two decimals and bold equal values as tied; "83 % to 84 %" best
 AMBIGUITY_MARGIN = 0.05  # "about 1.5": ambiguity stated to one decimal, half a unit either way
-SUCCESS_MARGIN = 0.03  # "perform similarly well" (0.90 vs 0.93); "close to their best" (within 0.02-0.03)
+SUCCESS_MARGIN = 0.04  # "perform similarly well" (0.90 vs 0.93), "close to their best" (0.89 vs 0.92): gaps of 0.03
+#: as printed to two decimals, up to 0.04 before rounding; the survey's own "similar" cases lie inside the margin
 COLLAPSE_BAND = (0.075, 0.175)  # "drops to about 10% to 15%": numbers in steps of 5 %, half a step either way
 RHO_MARGIN = 12 / (9 * (9 ** 2 - 1))  # one adjacent rank swap among Table 6's 9 pairings changes rho by 1/60
 
@@ -211,23 +212,29 @@ def precision_tracks_success(data: Data):
                  RHO_MARGIN)]
 
 
+#: The pairings the survey names as "close to their best performance at 300 features already" (5.2).
+SATURATING = ("censure-orb", "censure-latch", "sift-sift")
+
+
 def success_saturates(data: Data):
-    """Per Table 7 pairing: success at the largest count minus at 500 stays below the margin."""
+    """CenSurE-ORB, CenSurE-LATCH, SIFT-SIFT: success at the largest count minus at 300 stays below the margin."""
     cells, counts = by_count(data)
-    if 500.0 not in counts or max(counts) <= 500.0:
+    if 300.0 not in counts or max(counts) <= 300.0:
         return []
     top = max(counts)
-    return [_pair(data, f"{name} {top:.0f} vs 500 features", BELOW, SUCCESS_MARGIN, group, group, "pose_success",
-                  where_a={"reference_count": top}, where_b={"reference_count": 500.0})
-            for name, group in _by_pairing(cells)]
+    return [_pair(data, f"{name} {top:.0f} vs 300 features", BELOW, SUCCESS_MARGIN, group, group, "pose_success",
+                  where_a={"reference_count": top}, where_b={"reference_count": 300.0})
+            for name, group in _by_pairing(cells) if name in SATURATING]
 
 
 def few_references_fail(data: Data):
+    """Per Table 7 pairing: success at 1000 reference features minus at 100 exceeds the margin ("low": not
+    similar)."""
     cells, counts = by_count(data)
     if not {100.0, 1000.0} <= set(counts):
         return []
-    return [_pair(data, f"{name} 100 vs 1000 features", BEATS, SUCCESS_MARGIN, group, group, "pose_success",
-                  sign=-1, where_a={"reference_count": 100.0}, where_b={"reference_count": 1000.0})
+    return [_pair(data, f"{name} 1000 vs 100 features", ABOVE, SUCCESS_MARGIN, group, group, "pose_success",
+                  where_a={"reference_count": 1000.0}, where_b={"reference_count": 100.0})
             for name, group in _by_pairing(cells)]
 
 
@@ -238,7 +245,7 @@ def _by_pairing(cells: pd.DataFrame):
 #: Table 3's findings pick their rival (best, median, lowest) among every detector with its survey selector.
 _TABLE3 = cells_where(selectors=("survey",), pose=False)
 _REP = f"±{REPEATABILITY_MARGIN} (tables' two decimals; ties bolded)"
-_SUC = f"±{SUCCESS_MARGIN} (\"similarly well\": 0.90 vs 0.93)"
+_SUC = f"±{SUCCESS_MARGIN} (\"similarly well\": 0.90 vs 0.93, two decimals)"
 FINDINGS = [
     Hypothesis("NMS beats ANMS and bucketing, except for MSER (Table 2)", "table2_selectors",
                "\"We find MSER to be the only detector that performs best with ANMS. For all other detectors, we "
@@ -295,17 +302,20 @@ FINDINGS = [
                "bootstrap interval over pairings (1 - 2 alpha), superiority",
                "±1/60 (one adjacent rank swap among the survey's 9 pairings)", precision_tracks_success,
                cells_where(transforms=SYNTHETIC, pose=True)),
-    Hypothesis("Success stops growing beyond ~300-500 reference features for the best pairings (Table 7)",
-               "table7_reference_features",
+    Hypothesis("CenSurE-ORB, CenSurE-LATCH and SIFT-SIFT are close to their best at 300 reference features "
+               "(Table 7)", "table7_reference_features",
                "\"pairings like CenSurE-ORB, CenSurE-LATCH, and SIFT-SIFT reach values close to their best "
-               "performance at 300 features already. Others ... should not be used with less than 500\" (5.2)",
-               "per pairing, success at the largest count minus at 500", "paired t over pairs, below the margin",
-               f"{SUCCESS_MARGIN} (\"close to their best\": 0.89 vs 0.92, 0.82 vs 0.84)", success_saturates,
-               cells_where(transforms=["incremental"], pose=True)),
+               "performance at 300 features already\" (5.2)",
+               "per named pairing, success at the largest count minus at 300", "paired t over pairs, below the margin",
+               f"{SUCCESS_MARGIN} (\"close to their best\": 0.92 vs 0.89, 0.89 vs 0.86, 0.84 vs 0.82, two decimals)",
+               success_saturates, cells_where(transforms=["incremental"], detectors=("censure", "sift"),
+                                              descriptors=("orb", "latch", "sift"), pose=True)),
     Hypothesis("Success is low with 100 or fewer reference features (Table 7)", "table7_reference_features",
                "\"localization performance is low for 100 or less reference keypoints\" (5.2)",
-               "per pairing, success at 100 vs at 1000 reference features", "paired t over pairs, superiority",
-               _SUC, few_references_fail, cells_where(transforms=["incremental"], pose=True)),
+               "per pairing, success at 1000 minus at 100 reference features",
+               "paired t over pairs, above the margin (\"low\": not similar to 1000)",
+               f"{SUCCESS_MARGIN} (\"similarly well\": 0.90 vs 0.93, two decimals)", few_references_fail,
+               cells_where(transforms=["incremental"], pose=True)),
 ]
 
 
