@@ -30,9 +30,6 @@ def test_a_study_stops_when_its_best_has_stopped_moving():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="conf/detector/tuned/* were tuned on the old 640x480 dataset=synthetic "
-                   "(fingerprint 47746f8e4d9c3386); the lead re-tunes with `make tune` on dataset=survey's "
-                   "optimisation views, then removes this mark (strict: the check passing fails the xfail)")
 def test_every_tuned_file_was_tuned_on_the_survey_optimisation_views():
     expected = tuning_fingerprint()
     stale = {k: v for k, v in tuned_fingerprints().items() if v != expected}
