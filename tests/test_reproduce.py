@@ -156,7 +156,7 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     grid = ["runner.backend=serial", "mlflow.enabled=false", "detector=[censure]", "descriptor=[brief]",
             "selector=[nms]", "transform=[incremental]"]
     run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), output)
-    with pytest.raises(SystemExit, match="no finished reproduction"):
+    with pytest.raises(SystemExit, match="no reproduction with a finished run"):
         reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs)])
     measured = {"preset": "table4_incremental", "output": str(output), "wall_s": 12.4, "peak_mb": 345.6,
                 "cache_hit_rate": 0.25, "mlflow_runs": 2, "cells": 1}
@@ -172,6 +172,36 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     assert "CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)" in text
     assert text.index("Hand-written explanation.") < text.index("## The tables") < text.index("| CenSurE |")
     assert (docs / "reproduction" / "table4_incremental.csv").exists()
+    assert "Interim document" not in text
+
+
+def test_an_unfinished_reproduction_gives_an_interim_document(tmp_path):
+    """--document-only on a reproduction still running (only progress.json): the rounds finished so far, marked
+    as interim, each finding judged at its last look and marked still open below its full count."""
+    import json
+
+    from gtsweep.report import reproduce
+
+    work, docs = tmp_path / "work", tmp_path / "docs"
+    output = work / "round1" / "table4_incremental"
+    timed = lambda i: {"t_detect": 0.5, "t_describe": 0.25, "t_match": 0.125, "t_pose": 0.125}  # noqa: E731
+    fake_cell(output, "censure", "orb", "incremental", [1] * 9 + [0] * 3, extra=timed)
+    fake_cell(output, "sift", "sift", "incremental", [1] * 6 + [0] * 6, extra=timed)
+    measured = {"preset": "table4_incremental", "output": str(output), "wall_s": 60.0, "peak_mb": 100.0,
+                "cache_hit_rate": 0.0, "mlflow_runs": 3, "cells": 2, "round": 1, "counts": [1, 6, 6],
+                "items_evaluated": 24, "items_reused": 0, "extra_cells": 0}
+    plan = {"size": "decide", "presets": ["table4_incremental"], "alpha": 0.05, "tuned": "x"}
+    (work / "progress.json").write_text(json.dumps({"plan": plan, "finished": {"round1/table4_incremental": measured},
+                                                    "attempts": {}}))
+    assert reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs)]) == 0
+    text = (docs / "REPRODUCTION.md").read_text()
+    assert "**Interim document: this reproduction is not finished.**" in text
+    assert "| 1 | table4_incremental | 2 | 60 | 100 | 0.00 | 3 | 24 (0) |" in text
+    row = next(line for line in text.splitlines() if line.startswith(f"| {TABLE4}"))
+    assert "(still open: the next round adds data)" in row and "| round 1, 6, " in row
+    (work / "progress.json").write_text("{not json")
+    with pytest.raises(SystemExit, match="cannot read the reproduction's record"):
+        reproduce.main(["--document-only", "--work", str(work), "--docs", str(docs)])
 
 
 def test_selectors_that_both_keep_every_keypoint_are_not_compared(tmp_path):

@@ -38,6 +38,9 @@ from gtsweep.report.tuning import tuning_table
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])
 TUNED = CONF_DIR / "detector" / "tuned"
+INTERIM = ("**Interim document: this reproduction is not finished.** It shows the rounds finished so far "
+           "(`--document-only` on an unfinished run); the same `make reproduce` resumes it. Each verdict is its "
+           "finding's last look; a finding marked *still open* may be decided by a later round.")
 #: ``make tune``'s data set: dataset=survey with its optimisation views only.
 TUNING_DATA = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0}
 
@@ -103,7 +106,8 @@ def _size_line(size: str, results: list[dict]) -> str:
 
 
 def write_document(results: list[dict], size: str, docs: Path, alpha: float = ALPHA,
-                   sequential: Sequential | None = None, tuning: str | None = None) -> Path:
+                   sequential: Sequential | None = None, tuning: str | None = None,
+                   interim: bool = False) -> Path:
     """``docs/REPRODUCTION.md`` plus the tables' CSVs and the plots in ``docs/reproduction/``: the measurements,
     every finding's verdict with its test, margin and numbers, and every table with the entries tied with its
     best (each preset's newest run)."""
@@ -120,7 +124,8 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
              f"on this machine ({os.cpu_count()} cores): {sum(r['wall_s'] for r in results) / 60:.0f} min for all "
              f"runs{_resumed(results)}. Cells read `ours [low, high] (paper)`: the ends of our 95 % interval over "
              "images (a t interval; a design-effect Wilson interval for a rate); NA = not applicable.",
-             "", scale.line(), "", *([tuned_line(tuning), "", tuning_table(TUNED), ""] if tuning else []),
+             *(["", INTERIM] if interim else []), "", scale.line(), "",
+             *([tuned_line(tuning), "", tuning_table(TUNED), ""] if tuning else []),
              ("| round " if rounds else "") + "| preset | cells | wall time (s) | peak memory (MB) | cache hit rate "
              "| MLflow runs |" + (" images or pairs evaluated (kept) |" if rounds else ""),
              ("|---" if rounds else "") + "|---|---|---|---|---|---|" + ("---|" if rounds else "")]
@@ -255,7 +260,8 @@ def findings_section(findings: list, variant: str, alpha: float, sequential: Seq
             preset = s.hypothesis.preset
             cost = (f"{runs.spent(results, preset, s.round) / 60:.1f} / "
                     f"{runs.full_protocol_estimate(results, preset) / 60:.1f} min") if s.round and results else "-"
-            rows.append(f"| {f.text} | {f.verdict}{_more(f)} | {at} | {cost} | {f.test or '-'} | {f.margin} | "
+            still = "" if s.final else " (still open: the next round adds data)"
+            rows.append(f"| {f.text} | {f.verdict}{still}{_more(f)} | {at} | {cost} | {f.test or '-'} | {f.margin} | "
                         f"{f.correction or '-'} | {f.evidence.replace('|', '/')} |")
         return head + rows
     return head + ["| finding | verdict | test | margin | n | correction | evidence |",
@@ -315,20 +321,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="discard an unfinished reproduction in --work instead of resuming it")
     parser.add_argument("--document-only", action="store_true",
                         help="rebuild REPRODUCTION.md from the runs already in --work (e.g. after editing "
-                             "docs/reproduction_notes.md), without running anything")
+                             "docs/reproduction_notes.md), without running anything; on an unfinished "
+                             "reproduction, an interim document of the rounds finished so far")
     args = parser.parse_args(argv)
     if not 0 < args.alpha < 1:
         parser.error(f"--alpha must be in (0, 1), not {args.alpha}")
     work = Path(args.work).resolve()
     record = work / "measurements.json"
     if args.document_only:
-        if not record.exists():
-            raise SystemExit(f"gtsweep.reproduce: no finished reproduction in {work} (missing {record.name})")
-        saved = json.loads(record.read_text())
-        results = [{**r, "output": Path(r["output"])} for r in saved["presets"]]
-        sequential = _replay(results, args.alpha) if saved["size"] == "decide" else None
-        tuning = tuning_fingerprint() if saved["size"] != "tiny" else None  # tiny: not dataset=survey
-        print(f"wrote {write_document(results, saved['size'], Path(args.docs), args.alpha, sequential, tuning)}")
+        size, results, interim = saved_runs(work)
+        sequential = _replay(results, args.alpha) if size == "decide" else None
+        tuning = tuning_fingerprint() if size != "tiny" else None  # tiny: not dataset=survey
+        path = write_document(results, size, Path(args.docs), args.alpha, sequential, tuning, interim=interim)
+        print(f"wrote {path}" + (" (interim: the reproduction is not finished)" if interim else ""))
         return 0
     progress = open_progress(work, {"size": args.size, "presets": list(args.presets), "alpha": args.alpha,
                                     "tuned": tuned_digest()}, fresh=args.fresh or record.exists())
@@ -350,6 +355,26 @@ def main(argv: list[str] | None = None) -> int:
     tuning = tuning_fingerprint() if args.size != "tiny" else None
     print(f"wrote {write_document(results, args.size, Path(args.docs), args.alpha, sequential, tuning)}")
     return 0
+
+
+def saved_runs(work: Path) -> tuple[str, list[dict], bool]:
+    """The size and preset runs of the reproduction in ``work``, and whether it is unfinished: a finished one's
+    ``measurements.json``, else an unfinished one's finished runs so far (``progress.json``: an interim document)."""
+    record, progress = work / "measurements.json", work / "progress.json"
+    try:
+        if record.exists():
+            saved = json.loads(record.read_text())
+            return saved["size"], [{**r, "output": Path(r["output"])} for r in saved["presets"]], False
+        if progress.exists():
+            saved = json.loads(progress.read_text())
+            finished = [{**r, "output": Path(r["output"])} for r in saved["finished"].values()]
+            if finished:
+                order = {p: i for i, p in enumerate(PRESETS)}
+                finished.sort(key=lambda r: (r.get("round", 0), order.get(r["preset"], len(order))))
+                return saved["plan"]["size"], finished, True
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SystemExit(f"gtsweep.reproduce: cannot read the reproduction's record in {work} ({e})") from None
+    raise SystemExit(f"gtsweep.reproduce: no reproduction with a finished run in {work} (missing {record.name})")
 
 
 def _replay(results: list[dict], alpha: float) -> Sequential:
