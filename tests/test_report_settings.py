@@ -19,7 +19,8 @@ def _job(root, name, setting, censure_sift):
 
 def test_two_settings_side_by_side_with_paired_tests(tmp_path):
     # CenSurE-SIFT: 18/20 pairs under own, 6/20 under octave0; the 12 discordant pairs all own's (McNemar
-    # p = 2 * 0.5^12 = 0.00049): it moves. SIFT-SIFT: identical outcomes, p = 1.
+    # p = 2 * 0.5^12 = 0.00049; Holm over the 2 cells: 2 * 0.00049 = 0.00098): it moves. SIFT-SIFT: identical
+    # outcomes, p = 1 (Holm: max(0.00098, 1 * 1) = 1).
     _job(tmp_path, "0", "own", [1] * 18 + [0] * 2)
     _job(tmp_path, "1", "octave0", [1] * 6 + [0] * 14)
     files = combine(tmp_path, plots=False)
@@ -28,19 +29,61 @@ def test_two_settings_side_by_side_with_paired_tests(tmp_path):
     first, second = "own", "octave0"  # in job order, labelled by the value of the one key they vary
     moved = rows.loc[("censure", "sift")]
     assert moved[first].startswith("0.90 [") and moved[second].startswith("0.30 [")
-    assert moved[f"{second} - {first}"] == "-0.60 (p = 0.00049)" and moved[f"moves ({second})"] == "yes"
+    assert moved[f"{second} - {first}"] == "-0.60 (p = 0.00049, Holm 0.00098)" and moved[f"moves ({second})"] == "yes"
     assert moved["survey"] == 0.82  # the survey's Table 4: CenSurE-SIFT
     same = rows.loc[("sift", "sift")]
-    assert same[f"{second} - {first}"] == "+0.00 (p = 1)" and pd.isna(same[f"moves ({second})"])
+    assert same[f"{second} - {first}"] == "+0.00 (p = 1, Holm 1)" and pd.isna(same[f"moves ({second})"])
     text = (tmp_path / "combined" / "settings.md").read_text()
     # mean |ours - survey| over the two cells (survey: CenSurE-SIFT 0.82, SIFT-SIFT 0.84): octave0
     # (|0.30 - 0.82| + |0.75 - 0.84|) / 2 = 0.305, own (0.08 + 0.09) / 2 = 0.085
     assert text.startswith("**experiment.foreign_scale side by side: pose_success")
-    assert "- `own`: mean |ours - survey| 0.085 over 2 cells" in text
+    assert "- `own`: mean |ours - survey| 0.085 over 2 cells the survey reports (0.085 over the 2" in text
     assert "- `octave0`: 1 of 2 cells move; mean |ours - survey| 0.305 over 2 cells" in text
+    assert "Holm-adjusted across the cells" in text
 
 
 def test_one_setting_writes_no_comparison(tmp_path):
     _job(tmp_path, "0", "own", [1] * 18 + [0] * 2)
     combine(tmp_path, plots=False)
     assert not (tmp_path / "combined" / "settings.md").exists()
+
+
+def test_a_cell_moves_only_after_holm_across_the_cells(tmp_path):
+    # AKAZE-SIFT: 16/20 under own, 10/20 under octave0, the 6 discordant pairs all own's: McNemar p = 2 * 0.5^6 =
+    # 0.031 < 0.05, but Holm over the 3 cells (p 0.00049, 0.031, 1) gives 2 * 0.031 = 0.062: it does not move.
+    # CenSurE-SIFT (p 0.00049 -> 3 * 0.00049 = 0.0015) still moves.
+    for name, setting, censure, akaze in (("0", "own", [1] * 18 + [0] * 2, [1] * 16 + [0] * 4),
+                                          ("1", "octave0", [1] * 6 + [0] * 14, [1] * 10 + [0] * 10)):
+        _job(tmp_path, name, setting, censure)
+        fake_cell(tmp_path / name, "akaze", "sift", "incremental", akaze)
+    combine(tmp_path, plots=False)
+    rows = pd.read_csv(tmp_path / "combined" / "settings.csv").set_index(["detector", "descriptor"])
+    assert rows.loc[("akaze", "sift"), "octave0 - own"] == "-0.30 (p = 0.031, Holm 0.062)"
+    assert pd.isna(rows.loc[("akaze", "sift"), "moves (octave0)"])
+    assert rows.loc[("censure", "sift"), "octave0 - own"] == "-0.60 (p = 0.00049, Holm 0.0015)"
+    assert rows.loc[("censure", "sift"), "moves (octave0)"] == "yes"
+
+
+def test_a_job_with_failed_cells_fails_the_multirun_after_combining(tmp_path, capsys):
+    """A failed cell (e.g. passthrough's MSD octaves out of SIFT's pyramid) does not stop the other jobs: the
+    multirun combines every job, then names the failed cells in one line and exits 1."""
+    import pytest
+    from omegaconf import OmegaConf
+
+    from gtsweep.cli.multirun import MultirunReport, failed_cells
+    from gtsweep.orchestration.results import ResultStore
+
+    _job(tmp_path, "0", "own", [1] * 18 + [0] * 2)
+    _job(tmp_path, "1", "passthrough", [1] * 6 + [0] * 14)
+    error = {"key": "msd__nms__sift__incremental", "status": "error", "experiment": "pose", "reason": "octaves",
+             "methods": {"detector": "msd", "selector": "nms", "descriptor": "sift", "transform": "incremental"}}
+    ResultStore(tmp_path / "1").write_cell(error["key"], error, None)
+    assert failed_cells(tmp_path) == ["1/msd__nms__sift__incremental"]
+    config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}, "mlflow": {"enabled": False},
+                               "report": {"plots": False, "by": None, "alpha": 0.05}})
+    with pytest.raises(SystemExit) as stop:
+        MultirunReport().on_multirun_end(config)
+    assert stop.value.code == 1 and (tmp_path / "combined" / "settings.md").exists()
+    out, err = capsys.readouterr()
+    assert "multirun: jobs combined in" in out
+    assert err.strip() == "gtsweep: multirun: 1 cell(s) failed: 1/msd__nms__sift__incremental"

@@ -137,7 +137,11 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
     print("\n".join(summary))
     if outcome.failed:
         print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)
-        sys.exit(1)
+        from hydra.types import RunMode
+
+        if hydra_cfg.mode != RunMode.MULTIRUN:
+            sys.exit(1)
+        # in a multirun the other jobs still run and are combined; the multirun then exits 1 (gtsweep.cli.multirun)
 
 
 def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:

@@ -3,6 +3,7 @@ jobs' runs, and at the end one combined table and report across the jobs (:mod:`
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from hydra.experimental.callback import Callback
@@ -50,11 +51,30 @@ class MultirunReport(Callback):
             files = combine(sweep_dir, plots=config.report.plots, by=config.report.by, alpha=config.report.alpha)
         except GtsweepError as e:
             print(f"gtsweep: multirun: nothing combined ({e})")
-            return
-        record = multirun_record(sweep_dir)
-        if record.get("parent_run_id"):
-            from gtsweep.tracking.sweep import close_multirun
+            files = None
+        if files is not None:
+            record = multirun_record(sweep_dir)
+            if record.get("parent_run_id"):
+                from gtsweep.tracking.sweep import close_multirun
 
-            close_multirun(config.mlflow, record["parent_run_id"],
-                           [f for f in files if f.parent == sweep_dir / "combined"])
-        print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")
+                close_multirun(config.mlflow, record["parent_run_id"],
+                               [f for f in files if f.parent == sweep_dir / "combined"])
+            print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")
+        failed = failed_cells(sweep_dir)
+        if failed:
+            print(f"gtsweep: multirun: {len(failed)} cell(s) failed: {', '.join(failed)}", file=sys.stderr)
+            sys.exit(1)
+
+
+def failed_cells(sweep_dir: Path) -> list[str]:
+    """The cells of a multirun's jobs that ended in error, as ``<job>/<cell>`` (a job with failed cells lets the
+    other jobs run; the multirun as a whole then fails)."""
+    failed = []
+    for cell in sorted(Path(sweep_dir).glob("*/cells/*.json")):
+        try:
+            status = json.loads(cell.read_text()).get("status")
+        except (OSError, ValueError):
+            continue
+        if status == "error":
+            failed.append(f"{cell.parent.parent.name}/{cell.stem}")
+    return failed
