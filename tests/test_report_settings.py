@@ -3,6 +3,7 @@ interval, the paired test against the first setting on the same pairs, and which
 import json
 
 import pandas as pd
+import pytest
 from report_fakes import fake_cell
 
 from gtsweep.report.combine import combine
@@ -67,7 +68,6 @@ def test_a_cell_moves_only_after_holm_across_the_cells(tmp_path):
 def test_a_job_with_failed_cells_fails_the_multirun_after_combining(tmp_path, capsys):
     """A failed cell (e.g. passthrough's MSD octaves out of SIFT's pyramid) does not stop the other jobs: the
     multirun combines every job, then names the failed cells in one line and exits 1."""
-    import pytest
     from omegaconf import OmegaConf
 
     from gtsweep.cli.multirun import MultirunReport, failed_cells
@@ -87,3 +87,21 @@ def test_a_job_with_failed_cells_fails_the_multirun_after_combining(tmp_path, ca
     out, err = capsys.readouterr()
     assert "multirun: jobs combined in" in out
     assert err.strip() == "gtsweep: multirun: 1 cell(s) failed: 1/msd__nms__sift__incremental"
+
+
+@pytest.mark.slow
+def test_a_multirun_whose_job_fails_a_cell_still_combines_and_exits_1(tmp_path):
+    """The real case: passthrough reads MSD's level indices as SIFT octaves outside SIFT's pyramid, so that cell
+    fails in its job; the other job runs, the settings are combined, and the multirun exits 1 naming the cell."""
+    from sweep_helpers import run_cli
+
+    done = run_cli(["-m", "experiment.foreign_scale=own,passthrough", "detector=[msd]", "descriptor=[sift]",
+                    "transform=[incremental]", "selector=[nms]", "dataset.textures=[gravel,wood]",
+                    "dataset.view_size=[320,240]", "dataset.n_incremental=1", "dataset.n_absolute=1",
+                    "dataset.n_synthetic=1", "dataset.n_optimisation=1", "runner.backend=serial",
+                    "mlflow.enabled=false", "runner.progress=false", f"hydra.sweep.dir={tmp_path}/multi"], tmp_path)
+    assert done.returncode == 1, done.stderr[-2000:]
+    assert "gtsweep: multirun: 1 cell(s) failed: 1/msd__nms__sift__incremental" in done.stderr
+    assert "Traceback" not in done.stderr and "raised" not in done.stderr
+    text = (tmp_path / "multi" / "combined" / "settings.md").read_text()
+    assert "| MSD | SIFT | incremental | 0.83 |" in text and "- `passthrough`: no cell with a value" in text

@@ -83,7 +83,7 @@ def settings_rows(jobs: list[dict], by_job: dict, views_by_job: dict, alpha: flo
         for setting in settings[1:]:
             cells = data[setting][0]
             other = cells[cells["cell"] == cell] if not cells.empty else cells
-            if other.empty or other[METRIC].isna().all():
+            if other.empty or METRIC not in other or other[METRIC].isna().all():  # e.g. only failed cells
                 row[label[setting]] = "NA"
                 continue
             value_b, low_b, high_b = estimate(other, METRIC, views)
@@ -128,9 +128,13 @@ def settings_markdown(rows: pd.DataFrame, settings: list[str], alpha: float) -> 
         moved = rows.get(f"moves ({setting})")
         count = "" if moved is None else f"{int((moved == 'yes').sum())} of {len(rows)} cells move; "
         distance = (values[setting] - surveyed["survey"]).abs()
+        if not distance.notna().any():
+            lines.append(f"- `{setting}`: {count}no cell with a value that the survey reports")
+            continue
+        both = f" ({distance[common].mean():.3f} over the {int(common.sum())} that every setting has)" \
+            if common.any() else ""
         lines.append(f"- `{setting}`: {count}mean |ours - survey| {distance.mean():.3f} over "
-                     f"{int(distance.notna().sum())} cells the survey reports ({distance[common].mean():.3f} over "
-                     f"the {int(common.sum())} that every setting has)")
+                     f"{int(distance.notna().sum())} cells the survey reports{both}")
     return "\n".join(lines) + "\n"
 
 
