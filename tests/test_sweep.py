@@ -228,3 +228,23 @@ def test_corrupt_image_stops_before_any_result_file(tmp_path, existing_store):
     skipped = run_cli([*args, "dataset.skip_bad=true"], tmp_path)
     assert skipped.returncode == 0, skipped.stderr[-1500:]
     assert "1 bad item(s) skipped" in skipped.stdout
+
+
+def test_the_xfeat_column_runs_the_network_once_per_image_with_the_same_results(tmp_path, monkeypatch):
+    """A pairing table's XFeat column over two detectors: with the cache on, each image's dense map is computed
+    once (by the first detector's task) and read by the other's; the results equal a run without the cache."""
+    from gtsweep.stages import xfeat
+
+    calls = []
+    network = xfeat.run_network
+    monkeypatch.setattr(xfeat, "run_network", lambda *a, **k: calls.append(1) or network(*a, **k))
+    grid = [SERIAL, "detector=[fast,censure]", "descriptor=[xfeat]", "selector=[nms]", "transform=[incremental]",
+            "mlflow.enabled=false"]
+    cached = run_sweep(compose_config(tiny_overrides(tmp_path / "a", *grid)), tmp_path / "a" / "run")
+    images = 2 * 2 * 2  # 2 textures x 2 incremental pairs x 2 images
+    assert len(calls) == images and len(list((tmp_path / "a" / "cache" / "dense").rglob("*.npz"))) == images
+    del calls[:]
+    uncached = run_sweep(compose_config(tiny_overrides(tmp_path / "b", *grid, "cache.enabled=false")),
+                         tmp_path / "b" / "run")
+    assert len(calls) == 2 * images  # once per image and detector
+    assert_same_cells(tmp_path / "a" / "run", tmp_path / "b" / "run")

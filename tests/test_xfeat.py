@@ -179,3 +179,40 @@ def test_blank_image_and_no_keypoints_give_empty_arrays():
     assert keypoints == [] and desc.shape == (0, DESCRIPTOR_SIZE)
     kept, desc = detector.compute(blank, [])
     assert kept == [] and desc.shape == (0, DESCRIPTOR_SIZE)
+
+
+def test_a_dense_map_cache_runs_the_network_once_per_image_with_the_same_descriptors(texture, tmp_path,
+                                                                                      monkeypatch):
+    """Two detectors' keypoints on one image (a pairing table's XFeat column): with a DenseMapCache the network
+    runs once and the second description reads the stored map; the descriptors equal those without it, bit for
+    bit. A corrupt entry is recomputed; a cache without a directory keeps nothing."""
+    from gtsweep.orchestration.cache import DenseMapCache
+    from gtsweep.stages import xfeat
+
+    calls = []
+    network = xfeat.run_network
+    monkeypatch.setattr(xfeat, "run_network", lambda *a, **k: calls.append(1) or network(*a, **k))
+    fast = [k.pt for k in cv2.FastFeatureDetector_create(threshold=40).detect(texture)][:150]
+    orb = [k.pt for k in cv2.ORB_create(300).detect(texture)]
+    plain = [describe_arrays(texture, np.array(xy)) for xy in (fast, orb)]
+    assert len(calls) == 2
+    maps = DenseMapCache(tmp_path)
+    cached = [describe_arrays(texture, np.array(xy), maps) for xy in (fast, orb)]
+    assert len(calls) == 3 and (maps.misses, maps.hits) == (1, 1)
+    for (kept, desc), (kept_c, desc_c) in zip(plain, cached):
+        assert np.array_equal(kept, kept_c) and desc.tobytes() == desc_c.tobytes()
+    (entry,) = (tmp_path / "dense").rglob("*.npz")
+    entry.write_bytes(entry.read_bytes()[:1000])  # truncated: a miss, computed again and replaced
+    assert describe_arrays(texture, np.array(fast), maps)[1].tobytes() == plain[0][1].tobytes()
+    assert (maps.misses, len(calls)) == (2, 4)
+    assert describe_arrays(texture, np.array(fast), maps)[1].tobytes() == plain[0][1].tobytes()
+    assert (maps.hits, len(calls)) == (2, 4)
+    memory_only = DenseMapCache(None)
+    describe_arrays(texture, np.array(fast), memory_only)
+    describe_arrays(texture, np.array(fast), memory_only)
+    assert (memory_only.misses, memory_only.hits, len(calls)) == (2, 0, 6)
+    # through the OpenCV-style interface and gtsweep's describe stage
+    detector = XFeat_create()
+    detector.use_dense_cache(maps)
+    keypoints = [cv2.KeyPoint(x, y, 8) for x, y in orb]
+    assert detector.compute(texture, keypoints)[1].tobytes() == plain[1][1].tobytes() and len(calls) == 6

@@ -195,15 +195,16 @@ def pair_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list
 
 def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list, detection_rows: list[dict],
                    detector: str, descriptor: str, descriptor_params: dict, experiment: dict, seed: int,
-                   matchers: dict, estimators: dict) -> dict[Combination, list[dict] | Exception]:
+                   matchers: dict, estimators: dict, dense=None) -> dict[Combination, list[dict] | Exception]:
     """Per (matcher, estimator): a row of matching (and pose) metrics per view of a shard and reference count, or
     the exception that stopped that combination. Each pair is described once; each matcher matches it once and
-    every estimator works on those matches. A descriptor that fails raises (it stops every combination)."""
+    every estimator works on those matches. A descriptor that fails raises (it stops every combination).
+    ``dense``: where dense descriptor maps are kept between tasks (:func:`~gtsweep.stages.describe.describe_timed`)."""
     counts = experiment.get("reference_counts") or [None]
     norm, iou = DESCRIPTORS.get(descriptor).norm, experiment.get("iou_threshold", 0.5)
     results: dict[Combination, list[dict] | Exception] = {(m, e): [] for m in matchers for e in estimators}
     # every image of the shard described once
-    memo = DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
+    memo = DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"), dense)
     for (meta, view), (ref, test), det_row in zip(views(shard, transform, transform_cfg, seed), keypoints,
                                                    detection_rows):
         view_seed = stable_seed(seed, meta["view"])

@@ -47,9 +47,10 @@ class DescribeOnce:
     Images are read, never changed in place (an image changed after its description would be compared as it is now).
     """
 
-    def __init__(self, descriptor: str, detector: str, params: dict, foreign_scale: str | None = None):
+    def __init__(self, descriptor: str, detector: str, params: dict, foreign_scale: str | None = None,
+                 dense=None):
         self.descriptor, self.detector, self.params = descriptor, detector, params
-        self.foreign_scale = foreign_scale
+        self.foreign_scale, self.dense = foreign_scale, dense  # dense: see describe_timed
         self._found: dict[bytes, list[tuple[_Seen, tuple]]] = {}
         self.computed = 0  # descriptor calls made (for tests and benchmarks)
 
@@ -62,7 +63,8 @@ class DescribeOnce:
             digest = other.digest()
             if digest is not None and digest == seen.digest():
                 return result
-        result = describe_timed(image, chosen, self.descriptor, self.detector, self.foreign_scale, **self.params)
+        result = describe_timed(image, chosen, self.descriptor, self.detector, self.foreign_scale, dense=self.dense,
+                                **self.params)
         earlier.append((seen, result))
         self.computed += 1
         return result

@@ -133,6 +133,47 @@ class KeypointCache:
             self.write_errors += 1
 
 
+def _map_checksum(key: str, value: np.ndarray) -> str:
+    h = hashlib.sha256(f"{key}{value.dtype.str}{value.shape}".encode())
+    h.update(value.tobytes())
+    return h.hexdigest()
+
+
+class DenseMapCache:
+    """Dense per-image maps of learned descriptors on disk under ``<directory>/dense/`` (None: none kept), e.g.
+    XFeat's descriptor map: computed once per image and sampled at every detector's keypoints, so a pairing
+    table's XFeat column runs the network once per image instead of once per detector. ``get_or_compute(key,
+    compute)`` returns the stored map or ``compute()``'s, stored; entries carry their key and a checksum as
+    the keypoint cache's do (a bad one is recomputed and replaced). XFeat's map of a 1288×964 view: 4.9 MB.
+    Counts ``hits``, ``misses`` and ``write_errors`` (after the first, it stops writing)."""
+
+    def __init__(self, directory: str | os.PathLike | None):
+        self.directory = Path(directory) / "dense" if directory else None
+        self.hits = self.misses = self.write_errors = 0
+
+    def get_or_compute(self, key: str, compute) -> np.ndarray:
+        path = None if self.directory is None else self.directory / key[:2] / f"{key}.npz"
+        if path is not None:
+            try:
+                with np.load(path, allow_pickle=False) as entry:
+                    value = entry["value"]
+                    if str(entry["key"]) == key and str(entry["checksum"]) == _map_checksum(key, value):
+                        self.hits += 1
+                        return value
+            except Exception:  # missing, truncated, not a zip, bad CRC, missing fields: computed again
+                pass
+        self.misses += 1
+        value = np.ascontiguousarray(compute())
+        if path is not None and not self.write_errors:
+            entry = io.BytesIO()
+            np.savez(entry, value=value, key=key, checksum=_map_checksum(key, value))
+            try:
+                write_atomically(path, lambda f: f.write(entry.getbuffer()))
+            except OSError:  # full disk, read-only folder: the task goes on without storing
+                self.write_errors += 1
+        return value
+
+
 def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | None, detector: str,
                   detector_params: dict, selector: str, selector_params: dict):
     """Detect and select through ``cache``: ``(keypoints, n_detected, seconds)``.

@@ -106,7 +106,7 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
                                      tag=job, num_returns=2)
         for pairing in job.pairings:
             executor.submit(tasks.pair_shard, shard, job.transform, transform_cfg, payload,
-                            *_pairing_args(grid, pairing, seed), tag=pairing)
+                            *_pairing_args(grid, pairing, seed), cache_dir, tag=pairing)
 
 
 class _CellTracker:

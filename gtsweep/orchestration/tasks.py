@@ -17,7 +17,7 @@ from functools import partial
 
 from gtsweep.core.errors import NotApplicable
 from gtsweep.evaluation.evaluate import build_methods, detect_views, evaluate_views
-from gtsweep.orchestration.cache import KeypointCache, detect_cached
+from gtsweep.orchestration.cache import DenseMapCache, KeypointCache, detect_cached
 from gtsweep.orchestration.executor import describe_error
 from gtsweep.orchestration.grid import declare
 
@@ -64,11 +64,12 @@ def counts(cache: KeypointCache) -> dict:
 
 def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict, detector: str, descriptor: str,
                descriptor_params: dict, experiment: dict, seed: int, declared: dict | None = None,
-               methods: dict | None = None) -> dict:
+               methods: dict | None = None, cache_dir: str | None = None) -> dict:
     """Describe, match and estimate poses for every view of a shard; returns ``{"by_method": {(matcher,
     estimator): {"rows": [...]} or a failure}}``, or one failure for all (the detection's, or the descriptor's),
     with when the task ran. ``methods``: ``{"matchers": {name: params}, "estimators": {name: params}}`` (no
-    estimators outside the pose experiment); None: the survey's (``bf_ratio``, ``ransac``)."""
+    estimators outside the pose experiment); None: the survey's (``bf_ratio``, ``ransac``). ``cache_dir``: the
+    keypoint cache's directory, which also keeps dense descriptor maps (:class:`DenseMapCache`)."""
     started = time.time()
     if "keypoints" not in detection:
         return _timed(started, {k: v for k, v in detection.items() if k in ("na", "error")})
@@ -76,7 +77,8 @@ def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict
         declare(declared or {})
         matchers, estimators = build_methods(methods, experiment)
         outcome = evaluate_views(shard, transform, transform_cfg, detection["keypoints"], detection["rows"],
-                                 detector, descriptor, descriptor_params, experiment, seed, matchers, estimators)
+                                 detector, descriptor, descriptor_params, experiment, seed, matchers, estimators,
+                                 DenseMapCache(cache_dir))
     except Exception as e:
         return _timed(started, failure(e))
     return _timed(started, {"by_method": {combination: failure(result) if isinstance(result, Exception)

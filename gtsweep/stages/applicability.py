@@ -34,10 +34,10 @@ def applicability(detector: str, descriptor: str) -> str | None:
 
 
 def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
-                   foreign_scale: str | None = None, **params):
+                   foreign_scale: str | None = None, *, dense=None, **params):
     """:func:`gtsweep.stages.describe.describe_timed` for one pairing: :class:`NotApplicable` first when the
     survey's rule says the pairing cannot be evaluated."""
     reason = applicability(detector, name)
     if reason is not None:
         raise NotApplicable(reason)
-    return describe.describe_timed(image, keypoints, name, detector, foreign_scale, **params)
+    return describe.describe_timed(image, keypoints, name, detector, foreign_scale, dense=dense, **params)

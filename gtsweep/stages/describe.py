@@ -126,10 +126,14 @@ def describe(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
 
 
 def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector: str,
-                   foreign_scale: str | None = None, **params):
-    """:func:`describe` plus the wall time in seconds of the descriptor call itself."""
+                   foreign_scale: str | None = None, *, dense=None, **params):
+    """:func:`describe` plus the wall time in seconds of the descriptor call itself. ``dense``: where a
+    descriptor that samples a dense per-image map (XFeat) keeps it between calls
+    (:class:`gtsweep.orchestration.cache.DenseMapCache`); the descriptors are the same without it."""
     spec = DESCRIPTORS.get(name)
     extractor = spec.build(params)
+    if dense is not None and hasattr(extractor, "use_dense_cache"):
+        extractor.use_dense_cache(dense)
     prepared = prepare_keypoints(keypoints, detector, spec, extractor, np.shape(image)[:2],
                                  scales.check_foreign_scale(foreign_scale))
     if len(prepared) == 0:

@@ -29,6 +29,7 @@ would inflate the survey's ambiguity metric.
 """
 from __future__ import annotations
 
+import hashlib
 import threading
 from functools import lru_cache
 from pathlib import Path
@@ -246,11 +247,12 @@ def _mask_on_heatmap(mask, image_shape, heatmap_shape, scale_x: float, scale_y: 
     return (mask[rows.astype(np.intp)[:, None], cols.astype(np.intp)[None, :]] != 0).astype(np.float32)
 
 
-def describe_arrays(image: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def describe_arrays(image: np.ndarray, xy: np.ndarray, maps=None) -> tuple[np.ndarray, np.ndarray]:
     """XFeat descriptors at arbitrary positions ``xy`` (N, 2) in ``image`` pixels: (kept indices, (M, 64)).
 
     The dense map is sampled as in :func:`detect_arrays`. Positions outside the image (or not finite) are
-    dropped; the returned indices say which input rows the descriptor rows belong to.
+    dropped; the returned indices say which input rows the descriptor rows belong to. ``maps``: where the dense
+    map is kept between calls (:func:`dense_descriptors`).
     """
     net_input, scale_x, scale_y = to_network_input(image)
     height, width = np.asarray(image).shape[:2]
@@ -259,12 +261,30 @@ def describe_arrays(image: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.n
                           & (xy[:, 1] >= 0) & (xy[:, 1] <= height - 1))
     if keep.size == 0:
         return keep, np.zeros((0, DESCRIPTOR_SIZE), np.float32)
-    feats, _, _ = run_network(net_input)
     positions = xy[keep] / np.array([scale_x, scale_y])
     size = (net_input.shape[1], net_input.shape[0])
-    raw = sample_map(normalise_rows(feats, axis=0), positions, size, "bicubic")
+    raw = sample_map(dense_descriptors(net_input, maps), positions, size, "bicubic")
     nonzero = np.any(raw != 0, axis=1)
     return keep[nonzero], normalise_rows(raw[nonzero])
+
+
+def dense_descriptors(net_input: np.ndarray, maps=None) -> np.ndarray:
+    """XFeat's L2-normalised dense descriptor map (64, H/8, W/8) of a network input; through ``maps`` (an object
+    with ``get_or_compute(key, compute)``, e.g. :class:`gtsweep.orchestration.cache.DenseMapCache`) when given,
+    keyed by the input's bytes, the model file and OpenCV's version. The same numbers either way."""
+    def compute():
+        return normalise_rows(run_network(net_input)[0], axis=0)
+
+    if maps is None:
+        return compute()
+    h = hashlib.blake2b(np.ascontiguousarray(net_input).view(np.uint8).reshape(-1), digest_size=20)
+    h.update(f"{net_input.shape}{_model_identity()}".encode())
+    return maps.get_or_compute(f"xfeat-{h.hexdigest()}", compute)
+
+
+@lru_cache(maxsize=None)
+def _model_identity(path: str = str(MODEL_PATH)) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] + cv2.__version__
 
 
 class XFeat(UnorientedFloatFeature):
@@ -280,7 +300,12 @@ class XFeat(UnorientedFloatFeature):
         if keypoint_size <= 0:
             raise BadInput(f"keypoint_size must be positive, got {keypoint_size}")
         self.top_k, self.detection_threshold, self.keypoint_size = top_k, float(detection_threshold), float(keypoint_size)
+        self.maps = None  # where compute() keeps dense maps between calls (use_dense_cache)
         load_network()  # fail early if the model is missing; cached for the process
+
+    def use_dense_cache(self, maps) -> None:
+        """Keep the dense descriptor maps of :meth:`compute` in ``maps`` (see :func:`dense_descriptors`)."""
+        self.maps = maps
 
     def detect(self, image: np.ndarray, mask: np.ndarray | None = None) -> list[cv2.KeyPoint]:
         """Keypoints, best score first (response = XFeat score, angle -1, size ``keypoint_size``)."""
@@ -290,7 +315,7 @@ class XFeat(UnorientedFloatFeature):
     def compute(self, image: np.ndarray, keypoints: Sequence[cv2.KeyPoint]):
         """(kept keypoints, descriptors (M, 64) float32) for any keypoints; rows align with the kept list."""
         xy = np.array([k.pt for k in keypoints], dtype=np.float64).reshape(-1, 2)
-        kept, descriptors = describe_arrays(image, xy)
+        kept, descriptors = describe_arrays(image, xy, self.maps)
         return [keypoints[i] for i in kept], descriptors
 
     def detectAndCompute(self, image: np.ndarray, mask: np.ndarray | None = None, descriptors=None,
