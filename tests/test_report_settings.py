@@ -105,3 +105,45 @@ def test_a_multirun_whose_job_fails_a_cell_still_combines_and_exits_1(tmp_path):
     assert "Traceback" not in done.stderr and "raised" not in done.stderr
     text = (tmp_path / "multi" / "combined" / "settings.md").read_text()
     assert "| MSD | SIFT | incremental | 0.83 |" in text and "- `passthrough`: no cell with a value" in text
+
+
+def test_failed_cells_end_the_multirun_in_1_even_when_combining_breaks(tmp_path, monkeypatch, capsys):
+    """Hydra turns a callback's exception into a warning: a combine step that breaks must not turn a multirun
+    with failed cells into exit 0."""
+    from omegaconf import OmegaConf
+
+    from gtsweep.cli.multirun import MultirunReport
+    from gtsweep.orchestration.results import ResultStore
+    from gtsweep.report import combine as combine_module
+
+    _job(tmp_path, "0", "own", [1] * 18 + [0] * 2)
+    error = {"key": "msd__nms__sift__incremental", "status": "error", "experiment": "pose", "reason": "octaves",
+             "methods": {"detector": "msd", "selector": "nms", "descriptor": "sift", "transform": "incremental"}}
+    ResultStore(tmp_path / "0").write_cell(error["key"], error, None)
+
+    def broken(*args, **kwargs):
+        raise KeyError("pose_success")
+
+    monkeypatch.setattr(combine_module, "combine", broken)
+    config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}, "mlflow": {"enabled": False},
+                               "report": {"plots": False, "by": None, "alpha": 0.05}})
+    with pytest.raises(SystemExit) as stop:
+        MultirunReport().on_multirun_end(config)
+    assert stop.value.code == 1
+    assert capsys.readouterr().err.strip() == "gtsweep: multirun: 1 cell(s) failed: 0/msd__nms__sift__incremental"
+
+
+def test_the_multiruns_mlflow_run_is_marked_failed_with_the_failed_cells(tmp_path):
+    from mlflow.tracking import MlflowClient
+
+    from gtsweep.tracking.sweep import close_multirun, open_multirun
+
+    cfg = {"tracking_uri": f"sqlite:///{tmp_path}/m.db", "experiment": "gtsweep"}
+    run_id = open_multirun(cfg, "multirun experiment.foreign_scale=own,passthrough", tmp_path)
+    close_multirun(cfg, run_id, [], "1 cell(s) failed: 1/msd__nms__sift__incremental")
+    run = MlflowClient(cfg["tracking_uri"]).get_run(run_id)
+    assert run.info.status == "FAILED"
+    assert run.data.tags["gtsweep.reason"] == "1 cell(s) failed: 1/msd__nms__sift__incremental"
+    other = open_multirun(cfg, "multirun seed=0,1", tmp_path)
+    close_multirun(cfg, other)
+    assert MlflowClient(cfg["tracking_uri"]).get_run(other).info.status == "FINISHED"

@@ -47,23 +47,27 @@ class MultirunReport(Callback):
         from gtsweep.report.combine import combine
 
         sweep_dir = Path(config.hydra.sweep.dir)
-        try:
-            files = combine(sweep_dir, plots=config.report.plots, by=config.report.by, alpha=config.report.alpha)
-        except GtsweepError as e:
-            print(f"gtsweep: multirun: nothing combined ({e})")
-            files = None
-        if files is not None:
+        failed = failed_cells(sweep_dir)
+        reason = f"{len(failed)} cell(s) failed: {', '.join(failed)}" if failed else ""
+        try:  # Hydra turns a callback's exception into a warning: failed cells must still end the multirun in 1
+            try:
+                files = combine(sweep_dir, plots=config.report.plots, by=config.report.by,
+                                alpha=config.report.alpha)
+            except GtsweepError as e:
+                print(f"gtsweep: multirun: nothing combined ({e})")
+                files = []
+            else:
+                print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")
             record = multirun_record(sweep_dir)
             if record.get("parent_run_id"):
                 from gtsweep.tracking.sweep import close_multirun
 
                 close_multirun(config.mlflow, record["parent_run_id"],
-                               [f for f in files if f.parent == sweep_dir / "combined"])
-            print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")
-        failed = failed_cells(sweep_dir)
-        if failed:
-            print(f"gtsweep: multirun: {len(failed)} cell(s) failed: {', '.join(failed)}", file=sys.stderr)
-            sys.exit(1)
+                               [f for f in files if f.parent == sweep_dir / "combined"], reason)
+        finally:
+            if failed:
+                print(f"gtsweep: multirun: {reason}", file=sys.stderr)
+                sys.exit(1)
 
 
 def failed_cells(sweep_dir: Path) -> list[str]:

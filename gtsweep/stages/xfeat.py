@@ -278,13 +278,13 @@ def dense_descriptors(net_input: np.ndarray, maps=None) -> np.ndarray:
     if maps is None:
         return compute()
     h = hashlib.blake2b(np.ascontiguousarray(net_input).view(np.uint8).reshape(-1), digest_size=20)
-    h.update(f"{net_input.shape}{_model_identity()}".encode())
-    return maps.get_or_compute(f"xfeat-{h.hexdigest()}", compute)
+    h.update(f"xfeat{net_input.shape}{_model_identity()}".encode())
+    return maps.get_or_compute(h.hexdigest(), compute)
 
 
 @lru_cache(maxsize=None)
 def _model_identity(path: str = str(MODEL_PATH)) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] + cv2.__version__
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] + cv2.__version__ + np.__version__
 
 
 class XFeat(UnorientedFloatFeature):

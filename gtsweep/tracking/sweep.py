@@ -365,14 +365,18 @@ def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str
     return client.create_run(experiment, run_name=unique_name(client, experiment, name), tags=tags).info.run_id
 
 
-def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = ()) -> None:
-    """Attach the combined table and report to the multirun's run and close it."""
+def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = (), failed: str = "") -> None:
+    """Attach the combined table and report to the multirun's run and close it: FINISHED, or FAILED with
+    ``failed`` as the reason (e.g. the cells that failed in its jobs)."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri(cfg))
     for path in artifacts:
         client.log_artifact(run_id, str(path), "combined")
-    client.set_terminated(run_id, "FINISHED")
+    if failed:
+        mark_ended(client, run_id, failed, "FAILED")
+    else:
+        client.set_terminated(run_id, "FINISHED")
 
 
 def mark_ended(client, run_id: str, reason: str, status: str) -> str:
