@@ -99,9 +99,8 @@ def test_an_unwritable_cache_runs_uncached_with_one_warning(tmp_path, capsys):
     assert json.loads((tmp_path / "run" / "run.json").read_text())["cache"].startswith("off")
 
 
-def test_a_failed_write_turns_the_cache_off_for_the_rest_of_the_task(tmp_path, monkeypatch):
-    keypoints = np.zeros((3, 7), np.float32)
-    store = cache.KeypointCache(tmp_path / "c")
+def _full_disk(monkeypatch) -> list:
+    """Every cache write fails as on a full disk; the paths tried."""
     calls = []
 
     def broken(path, content):
@@ -109,6 +108,13 @@ def test_a_failed_write_turns_the_cache_off_for_the_rest_of_the_task(tmp_path, m
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(cache, "write_atomically", broken)
+    return calls
+
+
+def test_a_failed_write_turns_the_cache_off_for_the_rest_of_the_task(tmp_path, monkeypatch):
+    keypoints = np.zeros((3, 7), np.float32)
+    store = cache.KeypointCache(tmp_path / "c")
+    calls = _full_disk(monkeypatch)
     store.put("ab" * 32, keypoints, 3, 0.1)
     store.put("cd" * 32, keypoints, 3, 0.1)
     assert len(calls) == 1 and store.write_errors == 1
@@ -372,3 +378,12 @@ def test_an_atomic_write_that_fails_keeps_the_old_file_and_leaves_no_temporary_f
     with pytest.raises(OSError, match="a.json"):
         write_atomically(target, failing)
     assert target.read_text() == "old" and [p.name for p in target.parent.iterdir()] == ["a.json"]
+
+
+def test_a_dense_map_that_cannot_be_written_is_still_returned_and_writing_stops(tmp_path, monkeypatch):
+    maps = cache.DenseMapCache(tmp_path / "c")
+    calls = _full_disk(monkeypatch)
+    value = np.arange(6, dtype=np.float32).reshape(2, 3)
+    assert maps.get_or_compute("ab" * 20, lambda: value).tobytes() == value.tobytes()
+    assert maps.get_or_compute("cd" * 20, lambda: value * 2).tobytes() == (value * 2).tobytes()
+    assert len(calls) == 1 and maps.write_errors == 1 and maps.misses == 2

@@ -125,12 +125,19 @@ class KeypointCache:
             return
         fields = {"keypoints": keypoints, "n_detected": n_detected, "seconds": seconds, "key": key,
                   "checksum": _checksum(key, keypoints, n_detected, seconds)}
-        entry = io.BytesIO()  # numpy's zip writer makes many small writes and seeks: in memory, then one write
-        np.savez(entry, **fields)
-        try:
-            write_atomically(self._path(key), lambda f: f.write(entry.getbuffer()))
-        except OSError:  # full disk, read-only folder: the task goes on with its memory cache
-            self.write_errors += 1
+        self.write_errors += not write_entry(self._path(key), fields)  # else the task goes on with its memory
+
+
+def write_entry(path: Path, fields: dict) -> bool:
+    """One ``.npz`` cache entry written whole or not at all; False when it cannot be (full disk, read-only
+    folder)."""
+    entry = io.BytesIO()  # numpy's zip writer makes many small writes and seeks: in memory, then one write
+    np.savez(entry, **fields)
+    try:
+        write_atomically(path, lambda f: f.write(entry.getbuffer()))
+    except OSError:
+        return False
+    return True
 
 
 def _map_checksum(key: str, value: np.ndarray) -> str:
@@ -164,13 +171,9 @@ class DenseMapCache:
                 pass
         self.misses += 1
         value = np.ascontiguousarray(compute())
-        if path is not None and not self.write_errors:
-            entry = io.BytesIO()
-            np.savez(entry, value=value, key=key, checksum=_map_checksum(key, value))
-            try:
-                write_atomically(path, lambda f: f.write(entry.getbuffer()))
-            except OSError:  # full disk, read-only folder: the task goes on without storing
-                self.write_errors += 1
+        if path is not None and not self.write_errors:  # a failed write: the task goes on without storing
+            self.write_errors += not write_entry(path, {"value": value, "key": key,
+                                                        "checksum": _map_checksum(key, value)})
         return value
 
 

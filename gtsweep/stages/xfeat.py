@@ -271,7 +271,7 @@ def describe_arrays(image: np.ndarray, xy: np.ndarray, maps=None) -> tuple[np.nd
 def dense_descriptors(net_input: np.ndarray, maps=None) -> np.ndarray:
     """XFeat's L2-normalised dense descriptor map (64, H/8, W/8) of a network input; through ``maps`` (an object
     with ``get_or_compute(key, compute)``, e.g. :class:`gtsweep.orchestration.cache.DenseMapCache`) when given,
-    keyed by the input's bytes, the model file and OpenCV's version. The same numbers either way."""
+    keyed by the input's bytes, the model file and OpenCV's and NumPy's versions. The same numbers either way."""
     def compute():
         return normalise_rows(run_network(net_input)[0], axis=0)
 
