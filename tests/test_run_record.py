@@ -70,6 +70,35 @@ def test_an_attempt_killed_outright_ends_at_the_last_write_in_its_output(tmp_pat
     assert record.run("round1/b", tmp_path / "b", lambda: measured(1.0))["wall_s"] == 20.0
 
 
+def test_a_running_attempt_saves_a_heartbeat_and_one_killed_outright_ends_at_it(tmp_path):
+    """A run killed with its session (no signal, nothing written for minutes: Ray's workers write nothing until
+    a cell is done) still counts the time it ran, up to its last heartbeat."""
+    import time
+    clock = Clock(1000.0)
+    record = RunRecord(tmp_path / "progress.json", PLAN, clock, heartbeat_s=0.01)
+    beats = []
+
+    def start():
+        for now in (1030.0, 1060.0, 1090.0):
+            clock.now = now
+            waited = time.monotonic()
+            while time.monotonic() - waited < 10:  # until the heartbeat has saved this time
+                time.sleep(0.005)
+                saved = json.loads((tmp_path / "progress.json").read_text())["attempts"]["round1/b"]
+                if saved["alive"] == now:
+                    beats.append(now)
+                    break
+        return measured(90.0)
+
+    assert record.run("round1/b", tmp_path / "b", start)["wall_s"] == 90.0
+    assert beats == [1030.0, 1060.0, 1090.0]
+    # as a killed process leaves it: started, alive 75 s later, never ended, nothing written in its output
+    killed = RunRecord(tmp_path / "progress2.json", PLAN, clock)
+    killed.attempts["round1/c"] = {"output": str(tmp_path / "c"), "started": 1000.0, "ended": None,
+                                   "alive": 1075.0, "earlier_s": 0.0, "tries": 1}
+    assert killed.interrupted_seconds() == 75.0
+
+
 def test_a_record_of_another_plan_or_an_unreadable_one_is_refused(tmp_path):
     RunRecord(tmp_path / "progress.json", PLAN).save()
     with pytest.raises(BadInput, match=r"another plan: alpha 0.05 \(now 0.1\), tuned 'abc' \(now 'def'\); run it "

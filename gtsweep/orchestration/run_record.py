@@ -6,13 +6,15 @@ tuned parameters' digest: a resume must run the same reproduction), every finish
 and the attempts cut short. A resumed run is a sweep started again in the same output directory: the sweep keeps
 its finished cells (``gtsweep.orchestration.skeleton``), and the keypoint cache its detections. The wall time of a
 run includes its interrupted attempts: an attempt ended by a signal says when; one killed outright (``kill -9``,
-a lost machine) is taken to have ended at the last write in its output.
+a lost machine, a session that ends) is taken to have ended at its last sign of life: the newest of its heartbeat
+(``alive``, saved every minute while it runs) and the last write in its output.
 """
 from __future__ import annotations
 
 import json
 import os
 import shutil
+import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -24,17 +26,20 @@ from gtsweep.core.errors import BadInput
 class RunRecord:
     """The finished preset runs of one reproduction (``plan``) and its interrupted attempts, kept in ``path``."""
 
-    def __init__(self, path: Path, plan: dict, clock: Callable[[], float] = time.time):
-        self.path, self.plan, self.clock = Path(path), plan, clock
+    def __init__(self, path: Path, plan: dict, clock: Callable[[], float] = time.time, heartbeat_s: float = 60.0):
+        self.path, self.plan, self.clock, self.heartbeat_s = Path(path), plan, clock, heartbeat_s
         self.finished: dict[str, dict] = {}  # key -> the run's measurements
-        # key -> {"output", "started", "ended" (None: killed), "earlier_s" (its cut attempts before), "tries"}
+        # key -> {"output", "started", "ended" (None: killed), "alive" (its last heartbeat), "earlier_s" (its cut
+        # attempts before), "tries"}
         self.attempts: dict[str, dict] = {}
+        self._saving = threading.Lock()
 
     @classmethod
-    def resume(cls, path: Path, plan: dict, clock: Callable[[], float] = time.time) -> "RunRecord":
+    def resume(cls, path: Path, plan: dict, clock: Callable[[], float] = time.time,
+               heartbeat_s: float = 60.0) -> "RunRecord":
         """The record at ``path`` when it is of the same ``plan``; a new one when there is none. Another plan's
         record is refused (:class:`BadInput`): resuming it would mix two reproductions."""
-        record = cls(path, plan, clock)
+        record = cls(path, plan, clock, heartbeat_s)
         if not record.path.exists():
             return record
         try:
@@ -65,15 +70,23 @@ class RunRecord:
         earlier = self.attempts.get(key)
         earlier_s = 0.0 if earlier is None else earlier["earlier_s"] + self._attempt_seconds(earlier)
         tries = 1 if earlier is None else earlier["tries"] + 1
-        self.attempts[key] = {"output": str(output), "started": self.clock(), "ended": None,
+        now = self.clock()
+        self.attempts[key] = {"output": str(output), "started": now, "ended": None, "alive": now,
                               "earlier_s": earlier_s, "tries": tries}
         self.save()
+        stop = threading.Event()
+        beating = threading.Thread(target=self._beat, args=(key, stop), daemon=True, name="run-record-heartbeat")
+        beating.start()
         try:
             result = start()
         except BaseException:
+            stop.set()
+            beating.join()
             self.attempts[key]["ended"] = self.clock()
             self.save()
             raise
+        stop.set()
+        beating.join()
         result = {**result, "wall_s": result["wall_s"] + earlier_s, "attempts": tries}
         del self.attempts[key]
         self.finished[key] = result
@@ -85,13 +98,25 @@ class RunRecord:
         return sum(a["earlier_s"] + self._attempt_seconds(a) for a in self.attempts.values())
 
     def _attempt_seconds(self, attempt: dict) -> float:
-        ended = attempt["ended"] if attempt["ended"] is not None else last_write(Path(attempt["output"]))
-        return max(0.0, (ended or attempt["started"]) - attempt["started"])
+        ended = attempt["ended"]
+        if ended is None:  # killed outright: its last sign of life
+            ended = max(attempt.get("alive") or 0.0, last_write(Path(attempt["output"])) or 0.0)
+        return max(0.0, ended - attempt["started"]) if ended else 0.0
+
+    def _beat(self, key: str, stop: threading.Event) -> None:
+        """Save ``key``'s attempt as alive every ``heartbeat_s`` until ``stop``."""
+        while not stop.wait(self.heartbeat_s):
+            self.attempts[key]["alive"] = self.clock()
+            try:
+                self.save()
+            except OSError:  # a full or lost disk: the run itself reports what it cannot write
+                pass
 
     def save(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomically(self.path, json.dumps({"plan": self.plan, "finished": self.finished,
-                                                "attempts": self.attempts}, default=str, indent=1))
+        with self._saving:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            write_atomically(self.path, json.dumps({"plan": self.plan, "finished": self.finished,
+                                                    "attempts": self.attempts}, default=str, indent=1))
 
 
 def last_write(directory: Path) -> float | None:
