@@ -387,3 +387,28 @@ def test_a_dense_map_that_cannot_be_written_is_still_returned_and_writing_stops(
     assert maps.get_or_compute("ab" * 20, lambda: value).tobytes() == value.tobytes()
     assert maps.get_or_compute("cd" * 20, lambda: value * 2).tobytes() == (value * 2).tobytes()
     assert len(calls) == 1 and maps.write_errors == 1 and maps.misses == 2
+
+
+def test_dense_descriptor_maps_are_counted_in_run_json_and_a_failed_write_warns_once(tmp_path, capsys):
+    """XFeat's dense maps (<cache.dir>/dense/): the first detector's tasks compute them, the second's read them,
+    a second sweep on the same cache computes none; run.json counts each. A dense folder that cannot be written
+    gives one warning line and the same results."""
+    grid = ["detector=[orb,fast]", "descriptor=[xfeat]", "selector=[nms]", "transform=[incremental]",
+            "runner.backend=serial", "mlflow.enabled=false", "report.plots=false"]
+    first = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "first")
+    record = json.loads((tmp_path / "first" / "run.json").read_text())
+    views = record["dense_map_misses"]  # one network run per distinct image
+    assert views > 0 and record["dense_map_hits"] == views and record["dense_map_write_errors"] == 0
+    again = json.loads((run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "again").output_dir
+                        / "run.json").read_text())
+    assert (again["dense_map_misses"], again["dense_map_hits"]) == (0, 2 * views)
+    blocked = tmp_path / "blocked"
+    blocked.mkdir()
+    (blocked / "dense").write_text("not a folder")
+    capsys.readouterr()
+    outcome = run_sweep(compose_config(tiny_overrides(tmp_path, *grid, f"cache.dir={blocked}")), tmp_path / "b")
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "dense descriptor maps" in line]
+    assert len(warnings) == 1, warnings
+    record = json.loads((tmp_path / "b" / "run.json").read_text())
+    assert record["dense_map_write_errors"] > 0 and record["dense_map_hits"] == 0
+    assert_same_cells(tmp_path / "first", tmp_path / "b")

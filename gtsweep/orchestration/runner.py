@@ -41,12 +41,15 @@ class DetectionJob:
 @dataclass
 class RunStats:
     """What a run did: cache hits and misses (a miss is one detector call), bad cache entries replaced, failed
-    cache writes, and task counts."""
+    cache writes, the same for dense descriptor maps (a miss is one network run, e.g. XFeat's), and task counts."""
 
     cache_hits: int = 0
     cache_misses: int = 0
     cache_corrupt: int = 0
     cache_write_errors: int = 0
+    dense_hits: int = 0
+    dense_misses: int = 0
+    dense_write_errors: int = 0
     detection_tasks: int = 0
     pairing_tasks: int = 0
 
@@ -90,6 +93,11 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
             stats.cache_misses += result.get("misses", 0)
             stats.cache_corrupt += result.get("corrupt", 0)
             stats.cache_write_errors += result.get("write_errors", 0)
+        else:
+            dense = result.get("dense", {})
+            stats.dense_hits += dense.get("hits", 0)
+            stats.dense_misses += dense.get("misses", 0)
+            stats.dense_write_errors += dense.get("write_errors", 0)
         tracker.add(job, result)
     return stats
 

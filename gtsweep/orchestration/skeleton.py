@@ -167,6 +167,10 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
                     stats.cache_write_errors, cache_dir)
         print(f"gtsweep: warning: {stats.cache_write_errors} task(s) could not write to the keypoint cache "
               f"{cache_dir}; they ran without it", file=sys.stderr)
+    if stats.dense_write_errors:
+        cache_note = f"{cache_note} ({stats.dense_write_errors} task(s) could not store dense descriptor maps)"
+        print(f"gtsweep: warning: {stats.dense_write_errors} task(s) could not write dense descriptor maps to "
+              f"{Path(cache_dir) / 'dense'}; they computed them without storing", file=sys.stderr)
     ordered = [summaries[cell.key] for cell in grid.cells]
     outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, data.fingerprint,
                            time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
@@ -232,6 +236,10 @@ def write_run_record(outcome: SweepOutcome, data, reuse: ViewReuse | None = None
         "cache_hits": outcome.stats.cache_hits,
         "cache_misses": outcome.stats.cache_misses,
         "cache_corrupt": outcome.stats.cache_corrupt,  # bad entries found, removed and recomputed
+        "cache_write_errors": outcome.stats.cache_write_errors,
+        "dense_map_hits": outcome.stats.dense_hits,  # dense descriptor maps (XFeat's) read from the cache
+        "dense_map_misses": outcome.stats.dense_misses,  # computed (one network run each)
+        "dense_map_write_errors": outcome.stats.dense_write_errors,
         "detection_tasks": outcome.stats.detection_tasks,
         "pairing_tasks": outcome.stats.pairing_tasks,
         "seconds": round(outcome.seconds, 3),

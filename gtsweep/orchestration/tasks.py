@@ -62,6 +62,11 @@ def counts(cache: KeypointCache) -> dict:
     return {"hits": cache.hits, "misses": cache.misses, "corrupt": cache.corrupt, "write_errors": cache.write_errors}
 
 
+def dense_counts(dense: DenseMapCache) -> dict:
+    """A pairing task's dense-map counts for the driver (all 0 for a descriptor without a dense map)."""
+    return {"hits": dense.hits, "misses": dense.misses, "write_errors": dense.write_errors}
+
+
 def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict, detector: str, descriptor: str,
                descriptor_params: dict, experiment: dict, seed: int, declared: dict | None = None,
                methods: dict | None = None, cache_dir: str | None = None) -> dict:
@@ -76,10 +81,12 @@ def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict
     try:
         declare(declared or {})
         matchers, estimators = build_methods(methods, experiment)
+        dense = DenseMapCache(cache_dir)
         outcome = evaluate_views(shard, transform, transform_cfg, detection["keypoints"], detection["rows"],
                                  detector, descriptor, descriptor_params, experiment, seed, matchers, estimators,
-                                 DenseMapCache(cache_dir))
+                                 dense)
     except Exception as e:
         return _timed(started, failure(e))
     return _timed(started, {"by_method": {combination: failure(result) if isinstance(result, Exception)
-                                          else {"rows": result} for combination, result in outcome.items()}})
+                                          else {"rows": result} for combination, result in outcome.items()},
+                            "dense": dense_counts(dense)})

@@ -236,7 +236,8 @@ class SweepTracker:
         record = self.output_dir / RUN_RECORD  # written by the sweep; its cluster (serial, or Ray's) becomes tags
         tags = cluster_tags(json.loads(record.read_text())) if record.exists() else {}
         totals = {"cells": len(outcome.summaries), "cache_hits": outcome.stats.cache_hits,
-                  "cache_misses": outcome.stats.cache_misses, "wall_time_s": outcome.seconds,
+                  "cache_misses": outcome.stats.cache_misses, "dense_map_hits": outcome.stats.dense_hits,
+                  "dense_map_misses": outcome.stats.dense_misses, "wall_time_s": outcome.seconds,
                   "resumed_cells": outcome.resumed}
         self.client.log_batch(self.parent_id, metrics=[Metric(SWEEP + k, float(v), now, 0) for k, v in totals.items()],
                               tags=[RunTag(k, v) for k, v in tags.items()])
