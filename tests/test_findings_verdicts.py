@@ -273,3 +273,24 @@ def test_images_to_decide_reads_a_band_finding_se_off_its_interval(d, low, high,
     z = 1.6448536269514722 + 0.8416212335729143
     se = abs(side) / 1.6448536269514722
     assert images_to_decide(claim, 0.05) == pytest.approx(36 * (z * se / abs(0.05 - abs(d))) ** 2)
+
+
+def test_no_number_of_images_decides_an_interval_over_the_methods_compared():
+    """Finding 10 (precision tracks success) rests on a bootstrap over Table 6's 9 pairings: images add no
+    pairings, so the images that would decide it are infinite, and the document says why instead of a count
+    (round 3's numbers: -0.333 [-1.474, +0.643] over 9 pairings)."""
+    from gtsweep.evaluation.statistics import Comparison
+    from gtsweep.evaluation.verdicts import Claim, images_to_decide
+    from gtsweep.report.findings import Finding
+    from gtsweep.report.reproduce import _more
+
+    spearman = Comparison("Spearman difference, bootstrap over pairings", -0.333, math.nan, -1.474, 0.643, n=9)
+    assert images_to_decide(Claim("rho", spearman, "beats", 1 / 60, images_narrow=False), 0.05) == math.inf
+    found = check(FINDINGS[9], {"table6_pairings": table6_spearman("holds").frame()},
+                  {"table6_pairings": table6_spearman("holds").views}, ALPHA)
+    assert [part.images_narrow for part in found.parts] == [False]
+    finding = Finding("Precision tracks success", "undecided", "bootstrap", n=9, to_decide=math.inf)
+    assert _more(finding) == (" (more images do not narrow its interval, which is over the 9 methods compared, "
+                              "as the survey's statement is)")
+    assert _more(Finding("x", "undecided", "t", n=24, to_decide=319.2)) == (
+        " (~320 images or pairs would decide it at the observed effect, now 24)")

@@ -50,6 +50,8 @@ class Claim:
     #: the share of the finding's clusters this comparison tests (0.5 when a rival picked on one half of the
     #: images is tested on the other): the images to decide it are counted over all of them
     share: float = 1.0
+    #: False for an interval over the methods compared (a bootstrap over pairings): more images add none of them
+    images_narrow: bool = True
 
     def p_values(self) -> tuple[float, float, float]:
         """(p of *holds*, p of *fails*, p of *equivalent*), each one-sided; 1.0 where not applicable."""
@@ -132,8 +134,9 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     ±delta (delta - |d|); AMONG: holds above 0 (d), equivalent inside ±delta (delta - |d|), fails below -delta
     (-delta - d); BELOW, ABOVE: either side of delta; WITHIN: inside or outside ±delta. A WITHIN comparison decided by
     its interval alone (a rate against a band: intervals over clusters) reads its SE off the interval's end that
-    must cross the boundary (its (1 - 2 alpha) half-width / z_(1-alpha)); other interval-only comparisons (a
-    bootstrap over pairings: more images add no pairings) and an estimate on a boundary give NaN. Counted over
+    must cross the boundary (its (1 - 2 alpha) half-width / z_(1-alpha)). A comparison over the methods compared
+    (``images_narrow`` False: a bootstrap over pairings, to which images add no pairings) gives infinity: no
+    number of images decides it; other interval-only comparisons and an estimate on a boundary give NaN. Counted over
     all the clusters the finding draws on (the tested ones / ``share``), as the rounds add images to both
     halves."""
     c = test.comparison
@@ -142,6 +145,8 @@ def images_to_decide(test: Claim, alpha: float, power: float = 0.8) -> float:
     if not math.isfinite(se) and test.kind == WITHIN and math.isfinite(c.low) and math.isfinite(c.high):
         upper = (abs(d) < delta) == (d >= 0)  # inside and above 0, or outside below -delta: the high end moves
         se = ((c.high - d) if upper else (d - c.low)) / stats.norm.ppf(1 - alpha)
+    if not test.images_narrow:
+        return math.inf
     if not (math.isfinite(se) and se > 0 and c.n > 1 and math.isfinite(d)):
         return math.nan
     if test.kind == BEATS:

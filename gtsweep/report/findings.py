@@ -209,7 +209,7 @@ def precision_tracks_success(data: Data):
     result = statistics.correlation_difference(values["precision"], values["n_correct"], values["pose_success"],
                                                confidence=1 - 2 * data.alpha)
     return [Claim(f"rho(precision, success) - rho(correct matches, success), {len(values)} pairings", result, BEATS,
-                 RHO_MARGIN)]
+                 RHO_MARGIN, images_narrow=False)]
 
 
 #: The pairings the survey names as "close to their best performance at 300 features already" (5.2).
@@ -339,11 +339,13 @@ def judge(hypothesis: Hypothesis, data: Data) -> Finding:
         lines.append(f"{test.label}: {c.difference:+.3f} [{c.low:+.3f}, {c.high:+.3f}]{p}, n = {c.n}: {verdict}")
     need = [verdicts.images_to_decide(t, data.alpha) for t, v in zip(parts, result.parts())
             if v == verdicts.UNDECIDED]
-    need = [x for x in need if math.isfinite(x)]
+    # the largest finite need; infinity when only comparisons no number of images decides are open
+    finite = [x for x in need if math.isfinite(x)]
+    to_decide = max(finite) if finite else (math.inf if math.inf in need else math.nan)
     return replace(base, verdict=result.verdict, evidence="; ".join(lines),
                    n=min(round(t.comparison.n / t.share) for t in parts),
                    correction=f"Holm over {len(parts)}" if len(parts) > 1 else "none (one comparison)",
-                   to_decide=max(need) if need and result.verdict == verdicts.UNDECIDED else math.nan,
+                   to_decide=to_decide if result.verdict == verdicts.UNDECIDED else math.nan,
                    parts=list(parts))
 
 

@@ -272,6 +272,9 @@ def findings_section(findings: list, variant: str, alpha: float, sequential: Seq
 
 def _more(finding) -> str:
     need = finding.to_decide
+    if need == math.inf:
+        return (f" (more images do not narrow its interval, which is over the {finding.n} methods compared, "
+                f"as the survey's statement is)")
     if not math.isfinite(need) or not finding.n:
         return ""
     return f" (~{math.ceil(need)} images or pairs would decide it at the observed effect, now {finding.n})"
