@@ -47,3 +47,23 @@ def test_each_look_spends_the_pocock_increment_and_a_decided_finding_stays_froze
     assert [look[3] for look in second.looks] == ["undecided", "undecided", "holds"]
     assert [look[2] for look in second.looks] == pytest.approx([spent[0], spent[1] - spent[0], spent[2] - spent[1]])
     assert second.spent == pytest.approx(spent[2]) and second.round == 3
+
+
+def test_a_finding_no_number_of_images_decides_asks_for_no_data_but_is_judged_when_its_preset_runs(no_files):
+    """Finding 10's kind (an interval over the methods compared): undecided at every look, it asks for no round
+    of its own; while another open finding keeps its preset running it is judged again at each look."""
+    def over_methods(data):
+        return [Claim("rho", Comparison("bootstrap over pairings", 0.0, math.nan, -1.0, 1.0, n=9), BEATS, 1 / 60,
+                      images_narrow=False)]
+
+    methods = Hypothesis("over the methods", "table4_incremental", "", "", "", "", over_methods)
+    other = Hypothesis("decided late", "table4_incremental", "", "", "", "", _claims([0.0, 0.5]))
+    design = Sequential(0.05, [methods, other])
+    needed = design.update(0, {"table4_incremental": {"round": 1, "counts": (1, 6, 6), "output": None}})
+    assert list(needed) == ["table4_incremental"]  # for the other finding
+    alone, _ = design.status
+    assert alone.finding.to_decide == math.inf and not alone.final and not alone.asks_for_data
+    needed = design.update(1, {"table4_incremental": {"round": 2, "counts": (2, 12, 12), "output": None}})
+    assert needed == {} and [look[3] for look in alone.looks] == ["undecided", "undecided"]
+    only = Sequential(0.05, [methods])  # alone: no round after the first
+    assert only.update(0, {"table4_incremental": {"round": 1, "counts": (1, 6, 6), "output": None}}) == {}

@@ -80,13 +80,12 @@ class RunRecord:
         try:
             result = start()
         except BaseException:
-            stop.set()
-            beating.join()
             self.attempts[key]["ended"] = self.clock()
-            self.save()
             raise
-        stop.set()
-        beating.join()
+        finally:
+            stop.set()
+            beating.join(timeout=5)  # a save hung on a lost disk must not hold the run
+            self.save()
         result = {**result, "wall_s": result["wall_s"] + earlier_s, "attempts": tries}
         del self.attempts[key]
         self.finished[key] = result
@@ -109,7 +108,7 @@ class RunRecord:
             self.attempts[key]["alive"] = self.clock()
             try:
                 self.save()
-            except OSError:  # a full or lost disk: the run itself reports what it cannot write
+            except Exception:  # a full or lost disk: the run itself reports what it cannot write
                 pass
 
     def save(self) -> None:

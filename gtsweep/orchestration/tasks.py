@@ -78,15 +78,15 @@ def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict
     started = time.time()
     if "keypoints" not in detection:
         return _timed(started, {k: v for k, v in detection.items() if k in ("na", "error")})
+    dense = DenseMapCache(cache_dir)
     try:
         declare(declared or {})
         matchers, estimators = build_methods(methods, experiment)
-        dense = DenseMapCache(cache_dir)
         outcome = evaluate_views(shard, transform, transform_cfg, detection["keypoints"], detection["rows"],
                                  detector, descriptor, descriptor_params, experiment, seed, matchers, estimators,
                                  dense)
     except Exception as e:
-        return _timed(started, failure(e))
+        return _timed(started, {**failure(e), "dense": dense_counts(dense)})
     return _timed(started, {"by_method": {combination: failure(result) if isinstance(result, Exception)
                                           else {"rows": result} for combination, result in outcome.items()},
                             "dense": dense_counts(dense)})

@@ -260,7 +260,8 @@ def findings_section(findings: list, variant: str, alpha: float, sequential: Seq
             preset = s.hypothesis.preset
             cost = (f"{runs.spent(results, preset, s.round) / 60:.1f} / "
                     f"{runs.full_protocol_estimate(results, preset) / 60:.1f} min") if s.round and results else "-"
-            still = "" if s.final else " (still open: the next round adds data)"
+            still = ("" if s.final else " (still open: the next round adds data)" if s.asks_for_data
+                     else " (still open: judged again when its preset runs for another finding)")
             rows.append(f"| {f.text} | {f.verdict}{still}{_more(f)} | {at} | {cost} | {f.test or '-'} | {f.margin} | "
                         f"{f.correction or '-'} | {f.evidence.replace('|', '/')} |")
         return head + rows

@@ -47,6 +47,13 @@ class Status:
     def final(self) -> bool:
         return self.decided or self.fraction >= 1.0  # not testable early (e.g. an empty half): more data may help
 
+    @property
+    def asks_for_data(self) -> bool:
+        """Open, and more images could decide it: a finding no number of images decides (an interval over the
+        methods compared: ``to_decide`` infinite) asks for none, and is judged again only when its preset runs for
+        another finding."""
+        return not self.final and not (self.finding is not None and self.finding.to_decide == math.inf)
+
 
 class Sequential:
     """The state of every finding across rounds; :meth:`update` is the ``needed`` callback of
@@ -74,7 +81,7 @@ class Sequential:
             s.round, s.per_texture, s.fraction, s.spent, s.nominal = k + 1, counts(preset, run["counts"]), t, \
                 spent_alpha(self.alpha, t), nominal
             s.looks.append((k + 1, s.per_texture, nominal, s.finding.verdict))
-        return needed_cells([s.hypothesis for s in self.status if not s.final], latest)
+        return needed_cells([s.hypothesis for s in self.status if s.asks_for_data], latest)
 
     def decided_at(self) -> dict[str, tuple[int, int]]:
         """Per finding (its text): the round and the count per texture of its last look."""
