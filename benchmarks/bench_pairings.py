@@ -25,7 +25,7 @@ from gtsweep.cli.overrides import compose_config
 from gtsweep.core.errors import GtsweepError
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.grid import build_grid
-from gtsweep.stages.describe import descriptor_params
+from gtsweep.stages.describe import DESCRIPTORS, describe_batch, descriptor_params
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.applicability import applicability, describe_timed
 from gtsweep.stages.scales import FOREIGN_SCALES, OWN
@@ -109,6 +109,19 @@ def table(found, costs, descriptors, option: str) -> tuple[str, list[tuple[float
     return "\n".join(lines), ratios
 
 
+def together(image, grid, found, descriptor: str, every: dict, repeat: int) -> str:
+    """A ``per_image`` descriptor (DAISY) on every applicable detector's keypoints of the image: the separate
+    calls' CPU time (from ``every``) against one call for all of them (``runner.describe_together``)."""
+    detectors = [d for d in found if applicability(d, descriptor) is None]
+    apart = 1000 * sum(every[(OWN, d, descriptor)] for d in detectors)
+    params = descriptor_params(grid.descriptors[descriptor], detectors[0])
+    requests = [(d, found[d][0]) for d in detectors]
+    one = 1000 * min(cpu_seconds(lambda: describe_batch(image, requests, descriptor, OWN, **params))[1]
+                     for _ in range(repeat))
+    return (f"\n{descriptor} on the keypoints of its {len(detectors)} applicable detectors: {len(detectors)} calls "
+            f"{apart:.0f} ms, one call for all (runner.describe_together) {one:.0f} ms ({one / apart - 1:+.0%})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--texture", default="coarse_asphalt")
@@ -141,6 +154,8 @@ def main() -> None:
         print(f"\n[{option}] largest foreign/native description ratio: {worst[0]:.2f}x ({worst[1]}); "
               f"{len(over)} of {len(ratios)} foreign pairings above {TARGET:g}x" + (f": {', '.join(over)}" if over
                                                                                   else ""))
+    for descriptor in (d for d in grid.descriptors if DESCRIPTORS.get(d).per_image):
+        print(together(image, grid, found, descriptor, every, args.repeat))
     print(f"\nbenchmark wall time {time.perf_counter() - start:.0f} s")
 
 

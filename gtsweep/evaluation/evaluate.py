@@ -19,7 +19,7 @@ import numpy as np
 
 from gtsweep.core.seeds import stable_seed
 from gtsweep.evaluation import budget, metrics
-from gtsweep.evaluation.reuse import DescribeOnce
+from gtsweep.evaluation.reuse import DescribeOnce, describe_together
 from gtsweep.evaluation.transforms import ViewPair
 from gtsweep.evaluation.views import views
 from gtsweep.stages.describe import DESCRIPTORS
@@ -89,11 +89,25 @@ def describe_pair(view: ViewPair, ref_kps, test_kps, descriptor: str, descriptor
     several reference counts) are not described again.
     """
     memo = memo or DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"))
-    if experiment.get("test_count") is not None:
-        test_kps = test_kps[:experiment["test_count"]]
+    test_kps = _test_keypoints(test_kps, experiment)
     ref_kept, ref_desc, t_ref = memo.describe(view.reference, ref_kps, reference_count)
     test_kept, test_desc, t_test = memo.describe(view.test, test_kps)
     return Described(ref_kept, ref_desc, test_kept, test_desc, t_ref + t_test, descriptor)
+
+
+def _test_keypoints(test_kps, experiment: dict):
+    """The test keypoints a pair is described with: the strongest ``experiment["test_count"]`` (None: all)."""
+    return test_kps if experiment.get("test_count") is None else test_kps[:experiment["test_count"]]
+
+
+def _asked(built: list, keypoints: list, experiment: dict) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (image, keypoints) descriptions :func:`describe_pair` will ask for over ``built`` views."""
+    counts = experiment.get("reference_counts") or [None]
+    asked = []
+    for (_, view), (ref, test) in zip(built, keypoints):
+        asked += [(view.reference, ref if count is None else np.asarray(ref)[:count]) for count in counts]
+        asked.append((view.test, _test_keypoints(test, experiment)))
+    return asked
 
 
 def match_metrics(view: ViewPair, described: Described, norm: str, matcher, iou_threshold: float = 0.5):
@@ -193,20 +207,46 @@ def pair_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list
     return result
 
 
+def evaluate_members(shard: dict, transform: str, transform_cfg: dict, members: list[tuple], descriptor: str,
+                     descriptor_params: dict, experiment: dict, seed: int, matchers: dict, estimators: dict,
+                     dense=None) -> list[dict[Combination, list[dict] | Exception] | Exception]:
+    """:func:`evaluate_views` for several detectors' keypoints (``members``: ``(detector, keypoints,
+    detection_rows)``) described by one descriptor on one shard, each member's outcome or the exception that
+    stopped it. The views are built once, and a ``per_image`` descriptor (DAISY) describes every member's
+    keypoints of an image, and every reference count, in one call
+    (:func:`~gtsweep.evaluation.reuse.describe_together`)."""
+    built, memos = None, {}
+    if DESCRIPTORS.get(descriptor).per_image:  # else views stream one at a time, as evaluate_views makes them
+        built = list(views(shard, transform, transform_cfg, seed))
+        asked = {detector: _asked(built, keypoints, experiment) for detector, keypoints, _ in members}
+        memos = describe_together(asked, descriptor, descriptor_params, experiment.get("foreign_scale"), dense)
+    outcomes = []
+    for detector, keypoints, rows in members:
+        try:
+            outcomes.append(evaluate_views(shard, transform, transform_cfg, keypoints, rows, detector, descriptor,
+                                           descriptor_params, experiment, seed, matchers, estimators, dense,
+                                           memo=memos.get(detector), built=built))
+        except Exception as error:  # this member's cells fail; the others go on
+            outcomes.append(error)
+    return outcomes
+
+
 def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list, detection_rows: list[dict],
                    detector: str, descriptor: str, descriptor_params: dict, experiment: dict, seed: int,
-                   matchers: dict, estimators: dict, dense=None) -> dict[Combination, list[dict] | Exception]:
+                   matchers: dict, estimators: dict, dense=None, memo: DescribeOnce | None = None,
+                   built: list | None = None) -> dict[Combination, list[dict] | Exception]:
     """Per (matcher, estimator): a row of matching (and pose) metrics per view of a shard and reference count, or
     the exception that stopped that combination. Each pair is described once; each matcher matches it once and
     every estimator works on those matches. A descriptor that fails raises (it stops every combination).
-    ``dense``: where dense descriptor maps are kept between tasks (:func:`~gtsweep.stages.describe.describe_timed`)."""
+    ``dense``: where dense descriptor maps are kept between tasks (:func:`~gtsweep.stages.describe.describe_timed`).
+    ``memo`` and ``built``: the task's describe memo and its views, when :func:`evaluate_members` made them."""
     counts = experiment.get("reference_counts") or [None]
     norm, iou = DESCRIPTORS.get(descriptor).norm, experiment.get("iou_threshold", 0.5)
     results: dict[Combination, list[dict] | Exception] = {(m, e): [] for m in matchers for e in estimators}
     # every image of the shard described once
-    memo = DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"), dense)
-    for (meta, view), (ref, test), det_row in zip(views(shard, transform, transform_cfg, seed), keypoints,
-                                                   detection_rows):
+    memo = memo or DescribeOnce(descriptor, detector, descriptor_params, experiment.get("foreign_scale"), dense)
+    built = built if built is not None else views(shard, transform, transform_cfg, seed)
+    for (meta, view), (ref, test), det_row in zip(built, keypoints, detection_rows):
         view_seed = stable_seed(seed, meta["view"])
         for count in counts:
             described = describe_pair(view, ref, test, descriptor, descriptor_params, detector, experiment, count,

@@ -13,7 +13,9 @@ import weakref
 
 import numpy as np
 
-from gtsweep.stages.applicability import describe_timed
+from gtsweep.core.errors import GtsweepError
+from gtsweep.stages.applicability import applicability, describe_timed
+from gtsweep.stages.describe import DESCRIPTORS, describe_batch
 
 
 def _digest(array: np.ndarray) -> bytes:
@@ -68,3 +70,40 @@ class DescribeOnce:
         earlier.append((seen, result))
         self.computed += 1
         return result
+
+    def hold(self, image: np.ndarray, keypoints: np.ndarray, result: tuple) -> None:
+        """Keep ``result``, computed elsewhere (:func:`describe_together`), as this memo's description of
+        ``keypoints`` in ``image``."""
+        chosen = np.asarray(keypoints)
+        self._found.setdefault(_digest(chosen), []).append((_Seen(np.asarray(image)), result))
+
+
+def describe_together(requests: dict[str, list[tuple[np.ndarray, np.ndarray]]], descriptor: str, params: dict,
+                      foreign_scale: str | None = None, dense=None) -> dict[str, DescribeOnce]:
+    """A memo per detector holding the descriptions ``requests`` asks for (``{detector: [(image, keypoints),
+    ...]}``), made with one descriptor call per image for a ``per_image`` descriptor (DAISY:
+    :func:`gtsweep.stages.describe.describe_batch`): every detector's keypoint sets of an image, every reference
+    count of survey Table 7, in one pass over the image. Descriptors equal those of separate calls; each set's
+    seconds are its share of the call. Images are matched by identity (the views of one task). Any other
+    descriptor, a pairing the survey calls NA, or a batch that fails leaves the memos empty: they describe as
+    before (and raise as before)."""
+    memos = {detector: DescribeOnce(descriptor, detector, params, foreign_scale, dense) for detector in requests}
+    if not DESCRIPTORS.get(descriptor).per_image:
+        return memos
+    images: dict[int, tuple[np.ndarray, dict]] = {}
+    for detector, asked in requests.items():
+        if applicability(detector, descriptor) is not None:
+            continue
+        for image, keypoints in asked:
+            chosen = np.asarray(keypoints)
+            _, sets = images.setdefault(id(image), (image, {}))
+            sets.setdefault((detector, _digest(chosen)), chosen)
+    for image, sets in images.values():
+        try:
+            results = describe_batch(image, [(d, chosen) for (d, _), chosen in sets.items()], descriptor,
+                                     foreign_scale, **params)
+        except GtsweepError:
+            continue
+        for ((detector, _), chosen), result in zip(sets.items(), results):
+            memos[detector].hold(image, chosen, result)
+    return memos

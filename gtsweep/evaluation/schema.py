@@ -124,7 +124,8 @@ METRICS: dict[str, Metric] = _declare(
            interval=True),
     Metric("n_inliers", _POSE, "matches", "RANSAC inliers of the estimated pose (survey 5)", digits=1),
     Metric("t_detect", _DET, "s", "detection and selection time of the test image (survey Table 3)", digits=3),
-    Metric("t_describe", _MATCH, "s", "description time of reference and test image (not in the survey)", digits=3),
+    Metric("t_describe", _MATCH, "s", "description time of reference and test image (not in the survey; a call that "
+           "described several detectors' keypoints, DAISY's, counts its equal share)", digits=3),
     Metric("t_match", _MATCH, "s", "matching time (not in the survey)", digits=3),
     Metric("t_pose", _POSE, "s", "pose estimation time (not in the survey)", digits=3),
     # Absolute localization against a map (the survey's outlook; Micro-GPS, Zhang et al. ICRA 2019).

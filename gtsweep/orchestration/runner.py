@@ -2,8 +2,11 @@
 
 Images are loaded once per shard (and put to the executor once); one detection task per (shard, transform,
 detector, selector) feeds every descriptor's pairing task on that shard; one pairing task per (shard, descriptor)
-serves every matcher and estimator cell of that descriptor (descriptors are computed once). A cell is finished when
-all its shards are; the ``on_cell`` callback then writes it (and logs it), so a killed sweep loses only the cells in flight.
+serves every matcher and estimator cell of that descriptor (descriptors are computed once). A ``per_image``
+descriptor (DAISY, whose cost is a pass over the image) gets one pairing task per (shard, transform) for all
+detectors, which describes each image once (``runner.describe_together``; the results are the same either
+way). A cell is finished when all its shards are; the ``on_cell`` callback then writes it (and logs it), so a
+killed sweep loses only the cells in flight.
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ from gtsweep.orchestration import tasks
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import Cell, Grid
 from gtsweep.orchestration.shards import shard_kind
+from gtsweep.stages.describe import DESCRIPTORS
 
 
 @dataclass
@@ -26,6 +30,13 @@ class PairingJob:
 
     cells: list[Cell]
     shard: int
+
+
+@dataclass
+class PairingGroup:
+    """One pairing task for several detectors' pairing jobs of one shard (a ``per_image`` descriptor)."""
+
+    pairings: list[PairingJob]
 
 
 @dataclass
@@ -84,9 +95,10 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
     executor = make_executor(runner_cfg)
     if on_started is not None:
         on_started()
-    stats = RunStats(detection_tasks=len(jobs), pairing_tasks=sum(len(j.pairings) for j in jobs))
+    stats = RunStats(detection_tasks=len(jobs))
     tracker = _CellTracker(jobs, on_cell)
-    submit(executor, grid, shards, jobs, seed, cache_dir)
+    stats.pairing_tasks = submit(executor, grid, shards, jobs, seed, cache_dir,
+                                 runner_cfg.get("describe_together", True))
     for job, result in executor.results():
         if isinstance(job, DetectionJob):
             stats.cache_hits += result.get("hits", 0)
@@ -98,23 +110,46 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
             stats.dense_hits += dense.get("hits", 0)
             stats.dense_misses += dense.get("misses", 0)
             stats.dense_write_errors += dense.get("write_errors", 0)
-        tracker.add(job, result)
+        if isinstance(job, PairingGroup):  # each detector's part, with when the task ran
+            ran = {k: result[k] for k in ("started", "ended") if k in result}
+            parts = result.get("parts") or [result] * len(job.pairings)  # a crashed task: every part's error
+            for pairing, part in zip(job.pairings, parts):
+                tracker.add(pairing, {**part, **ran})
+        else:
+            tracker.add(job, result)
     return stats
 
 
 def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], seed: int,
-           cache_dir: str | None) -> None:
+           cache_dir: str | None, together: bool = True) -> int:
     """The task graph: each detection task's keypoints are passed to its pairing tasks; every task is tagged
-    with its job."""
+    with its job. With ``together``, a ``per_image`` descriptor's pairing jobs of one (transform, shard) share
+    one task (:class:`PairingGroup`). Returns the number of pairing tasks."""
     refs = {kind: [executor.put(shard) for shard in kind_shards] for kind, kind_shards in shards.items()}
+    groups: dict[tuple, list[tuple[PairingJob, object]]] = defaultdict(list)
+    submitted = 0
     for job in jobs:
         transform_cfg = grid.transforms[job.transform]
         shard = refs[shard_kind(job.transform, transform_cfg)][job.shard]
         payload, _ = executor.submit(tasks.detect_shard, shard, *_detection_args(grid, job, seed, cache_dir),
                                      tag=job, num_returns=2)
         for pairing in job.pairings:
-            executor.submit(tasks.pair_shard, shard, job.transform, transform_cfg, payload,
-                            *_pairing_args(grid, pairing, seed), cache_dir, tag=pairing)
+            args = _pairing_args(grid, pairing, seed)
+            if together and DESCRIPTORS.get(args[1]).per_image:
+                groups[(job.transform, job.shard, repr(args[1:]))].append((pairing, payload))
+                continue
+            executor.submit(tasks.pair_shard, shard, job.transform, transform_cfg, payload, *args, cache_dir,
+                            tag=pairing)
+            submitted += 1
+    for (transform, index, _), members in groups.items():
+        transform_cfg = grid.transforms[transform]
+        pairings = [pairing for pairing, _ in members]
+        _, *args = _pairing_args(grid, pairings[0], seed)
+        executor.submit(tasks.pair_shard_members, refs[shard_kind(transform, transform_cfg)][index], transform,
+                        transform_cfg, [p.cells[0].detector for p in pairings], *args, cache_dir,
+                        *[payload for _, payload in members], tag=PairingGroup(pairings))
+        submitted += 1
+    return submitted
 
 
 class _CellTracker:

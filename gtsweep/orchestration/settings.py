@@ -34,6 +34,7 @@ SETTINGS = {
     "runner.num_cpus": Range(1, None, integer=True, optional=True),
     "runner.shard_size": _COUNT,
     "runner.opencv_threads": Range(1, None, integer=True, optional=True),
+    "runner.describe_together": Choice((True, False)),
     "runner.progress": Choice((True, False)),
     "runner.dashboard": Choice((True, False)),
     "runner.ray_log_level": Choice(("debug", "info", "warning", "error")),

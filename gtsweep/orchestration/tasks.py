@@ -3,7 +3,8 @@ in-process or as Ray tasks.
 
 A *shard* is a few images (synthetic transforms) or image pairs (real pairs) with their pixels. One detection task
 runs per (shard, transform, detector, selector); its keypoints are reused by every descriptor's pairing task. A
-pairing task evaluates every (matcher, estimator) combination of the grid on one descriptor's pairs. What is
+pairing task evaluates every (matcher, estimator) combination of the grid on one descriptor's pairs, for one
+detector, or for every detector of a ``per_image`` descriptor (DAISY), which then describes each image once. What is
 computed per view (the keypoint budget, the reference counts, a failing matcher or estimator costing only its own
 combinations) is science: :mod:`gtsweep.evaluation.evaluate`; these functions only ship it.
 Keypoints travel as ``(N, 7)`` arrays (``cv2.KeyPoint`` does not pickle). A task never raises: an NA pairing
@@ -16,7 +17,7 @@ import time
 from functools import partial
 
 from gtsweep.core.errors import NotApplicable
-from gtsweep.evaluation.evaluate import build_methods, detect_views, evaluate_views
+from gtsweep.evaluation.evaluate import build_methods, detect_views, evaluate_members
 from gtsweep.orchestration.cache import DenseMapCache, KeypointCache, detect_cached
 from gtsweep.orchestration.executor import describe_error
 from gtsweep.orchestration.grid import declare
@@ -75,18 +76,38 @@ def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict
     with when the task ran. ``methods``: ``{"matchers": {name: params}, "estimators": {name: params}}`` (no
     estimators outside the pose experiment); None: the survey's (``bf_ratio``, ``ransac``). ``cache_dir``: the
     keypoint cache's directory, which also keeps dense descriptor maps (:class:`DenseMapCache`)."""
+    result = pair_shard_members(shard, transform, transform_cfg, [detector], descriptor, descriptor_params,
+                                experiment, seed, declared, methods, cache_dir, detection)
+    (part,) = result.pop("parts")
+    return {**part, **result}
+
+
+def pair_shard_members(shard: dict, transform: str, transform_cfg: dict, detectors: list[str], descriptor: str,
+                       descriptor_params: dict, experiment: dict, seed: int, declared: dict | None,
+                       methods: dict | None, cache_dir: str | None, *detections: dict) -> dict:
+    """:func:`pair_shard` for several detectors' detections of one shard (``detections``, one per detector, as
+    top-level arguments so the executor resolves them) described by one descriptor: ``{"parts": [each
+    detector's pair_shard result without its timing], "dense": counts}``, with when the task ran. A ``per_image``
+    descriptor (DAISY) describes all detectors' keypoints of an image in one call
+    (:func:`~gtsweep.evaluation.evaluate.evaluate_members`); one detector's failure is its own."""
     started = time.time()
-    if "keypoints" not in detection:
-        return _timed(started, {k: v for k, v in detection.items() if k in ("na", "error")})
     dense = DenseMapCache(cache_dir)
+    parts: list[dict | None] = [None if "keypoints" in d else {k: v for k, v in d.items() if k in ("na", "error")}
+                                for d in detections]
+    members = [(detector, d["keypoints"], d["rows"]) for detector, d, part in zip(detectors, detections, parts)
+               if part is None]
     try:
         declare(declared or {})
         matchers, estimators = build_methods(methods, experiment)
-        outcome = evaluate_views(shard, transform, transform_cfg, detection["keypoints"], detection["rows"],
-                                 detector, descriptor, descriptor_params, experiment, seed, matchers, estimators,
-                                 dense)
+        outcomes = evaluate_members(shard, transform, transform_cfg, members, descriptor, descriptor_params,
+                                    experiment, seed, matchers, estimators, dense) if members else []
     except Exception as e:
-        return _timed(started, {**failure(e), "dense": dense_counts(dense)})
-    return _timed(started, {"by_method": {combination: failure(result) if isinstance(result, Exception)
-                                          else {"rows": result} for combination, result in outcome.items()},
-                            "dense": dense_counts(dense)})
+        outcomes = [e] * len(members)
+    outcomes = iter(outcomes)
+    for i, part in enumerate(parts):
+        if part is None:
+            outcome = next(outcomes)
+            parts[i] = failure(outcome) if isinstance(outcome, Exception) else {"by_method": {
+                combination: failure(result) if isinstance(result, Exception) else {"rows": result}
+                for combination, result in outcome.items()}}
+    return _timed(started, {"parts": parts, "dense": dense_counts(dense)})

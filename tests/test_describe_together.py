@@ -1,0 +1,82 @@
+"""A descriptor whose cost is a pass over the image (DAISY: ``per_image``) describes every detector's keypoints of an
+image, and every reference count, in one call (issue 25: a repeated per-image pass): the descriptors are those of
+separate calls, bit for bit, and a sweep's cells are the same with ``runner.describe_together`` on or off."""
+import numpy as np
+import pytest
+from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
+
+from gtsweep.core.errors import GtsweepError
+from gtsweep.evaluation.reuse import describe_together
+from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.stages import describe as describe_stage
+from gtsweep.stages.describe import DESCRIPTORS, describe_batch, describe_timed
+from gtsweep.stages import keypoints as kp
+from gtsweep.stages.detect import detect
+
+
+@pytest.fixture(scope="module")
+def keypoint_sets(gravel_small):
+    """Three detectors' keypoints of one image: SIFT's and AKAZE's own octaves, ORB's pyramid levels."""
+    def strongest(name):
+        found = detect(gravel_small, name)
+        return found[np.argsort(-found[:, kp.RESPONSE], kind="stable")[:150]]
+    return {name: strongest(name) for name in ("sift", "akaze", "orb")}
+
+
+def test_one_daisy_call_gives_each_detectors_descriptors_of_separate_calls(gravel_small, keypoint_sets):
+    assert DESCRIPTORS.get("daisy").per_image and not DESCRIPTORS.get("sift").per_image
+    requests = list(keypoint_sets.items()) + [("orb", keypoint_sets["orb"][:10]), ("sift", keypoint_sets["sift"][:0])]
+    together = describe_batch(gravel_small, requests, "daisy")
+    for (detector, keypoints), (kept, desc, seconds) in zip(requests, together):
+        alone_kept, alone_desc, _ = describe_timed(gravel_small, keypoints, "daisy", detector)
+        assert np.array_equal(kept, alone_kept) and desc.tobytes() == alone_desc.tobytes() and desc.dtype == np.float32
+        assert len(desc) == len(keypoints) and (seconds > 0) == (len(keypoints) > 0)
+    shares = {round(seconds, 12) for _, _, seconds in together if seconds}
+    assert len(shares) == 1  # the call's time shared equally by the sets it served
+
+
+def test_a_descriptor_that_drops_keypoints_cannot_describe_them_together(gravel_small, keypoint_sets):
+    """BRISK drops keypoints near the border: one call for several sets could not be split back."""
+    border = keypoint_sets["orb"].copy()
+    border[:5, 0] = 2.0
+    with pytest.raises(GtsweepError, match="kept .* of .* keypoints"):
+        describe_batch(gravel_small, [("orb", border)], "brisk")
+
+
+def test_the_memos_hold_every_description_asked_for_with_one_call_per_image(gravel_small, keypoint_sets,
+                                                                            monkeypatch):
+    calls = []
+    batch = describe_stage.describe_batch
+    monkeypatch.setattr("gtsweep.evaluation.reuse.describe_batch",
+                        lambda image, requests, *a, **k: calls.append(len(requests)) or batch(image, requests, *a, **k))
+    other = np.ascontiguousarray(gravel_small[::-1])
+    asked = {d: [(gravel_small, k), (gravel_small, k[:50]), (other, k)] for d, k in keypoint_sets.items()}
+    asked["gftt"] = [(gravel_small, keypoint_sets["orb"])]  # DAISY needs oriented keypoints: NA, left to its memo
+    memos = describe_together(asked, "daisy", {})
+    assert calls == [6, 3]  # one call per image: 3 detectors x 2 counts, then 3 detectors
+    for detector, pairs in asked.items():
+        for image, keypoints in pairs:
+            if detector == "gftt":
+                continue
+            kept, desc, _ = memos[detector].describe(image, keypoints)
+            assert desc.tobytes() == describe_timed(image, keypoints, "daisy", detector)[1].tobytes()
+        assert memos[detector].computed == 0  # every description came from the one call per image
+    assert describe_together({"orb": [(gravel_small, keypoint_sets["orb"])]}, "brief", {})["orb"].computed == 0
+    assert calls == [6, 3]  # not a per_image descriptor: nothing described ahead
+
+
+def test_a_sweep_with_daisy_gives_the_same_cells_together_or_apart(tmp_path):
+    """Three oriented detectors and an unoriented one (NA for DAISY) on real pairs and a synthetic transform,
+    with survey Table 7's reference counts: the cells are identical, and together needs fewer pairing tasks."""
+    grid = ["detector=[akaze,sift,orb,gftt]", "descriptor=[daisy,brief]", "selector=[nms]",
+            "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]",
+            "experiment.reference_counts=[50,150]", "runner.backend=serial", "mlflow.enabled=false",
+            "report.plots=false"]
+    apart = run_sweep(compose_config(tiny_overrides(tmp_path, *grid, "runner.describe_together=false")),
+                      tmp_path / "apart")
+    together = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "together")
+    assert_same_cells(tmp_path / "apart", tmp_path / "together")
+    daisy = [s for s in together.summaries if s["methods"]["descriptor"] == "daisy"]
+    assert {s["status"] for s in daisy} == {"ok", "na"}
+    # DAISY's 3 applicable detectors share one pairing task per (transform, shard) instead of one each
+    assert apart.stats.pairing_tasks - together.stats.pairing_tasks == 2 * (apart.stats.detection_tasks // 4)
