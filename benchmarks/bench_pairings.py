@@ -110,8 +110,8 @@ def table(found, costs, descriptors, option: str) -> tuple[str, list[tuple[float
 
 
 def together(image, grid, found, descriptor: str, every: dict, repeat: int) -> str:
-    """A ``per_image`` descriptor (DAISY) on every applicable detector's keypoints of the image: the separate
-    calls' CPU time (from ``every``) against one call for all of them (``runner.describe_together``)."""
+    """A descriptor with ``together`` (DAISY, SIFT) on every applicable detector's keypoints of the image: the
+    separate calls' CPU time (from ``every``) against the grouped calls (``runner.describe_together``)."""
     detectors = [d for d in found if applicability(d, descriptor) is None]
     apart = 1000 * sum(every[(OWN, d, descriptor)] for d in detectors)
     params = descriptor_params(grid.descriptors[descriptor], detectors[0])
@@ -119,7 +119,7 @@ def together(image, grid, found, descriptor: str, every: dict, repeat: int) -> s
     one = 1000 * min(cpu_seconds(lambda: describe_batch(image, requests, descriptor, OWN, **params))[1]
                      for _ in range(repeat))
     return (f"\n{descriptor} on the keypoints of its {len(detectors)} applicable detectors: {len(detectors)} calls "
-            f"{apart:.0f} ms, one call for all (runner.describe_together) {one:.0f} ms ({one / apart - 1:+.0%})")
+            f"{apart:.0f} ms, grouped (runner.describe_together) {one:.0f} ms ({one / apart - 1:+.0%})")
 
 
 def main() -> None:
@@ -154,7 +154,7 @@ def main() -> None:
         print(f"\n[{option}] largest foreign/native description ratio: {worst[0]:.2f}x ({worst[1]}); "
               f"{len(over)} of {len(ratios)} foreign pairings above {TARGET:g}x" + (f": {', '.join(over)}" if over
                                                                                   else ""))
-    for descriptor in (d for d in grid.descriptors if DESCRIPTORS.get(d).per_image):
+    for descriptor in (d for d in grid.descriptors if DESCRIPTORS.get(d).together):
         print(together(image, grid, found, descriptor, every, args.repeat))
     print(f"\nbenchmark wall time {time.perf_counter() - start:.0f} s")
 

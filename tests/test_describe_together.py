@@ -1,6 +1,7 @@
-"""A descriptor whose cost is a pass over the image (DAISY: ``per_image``) describes every detector's keypoints of an
-image, and every reference count, in one call (issue 25: a repeated per-image pass): the descriptors are those of
-separate calls, bit for bit, and a sweep's cells are the same with ``runner.describe_together`` on or off."""
+"""A descriptor that can describe keypoint sets together (``together``: DAISY, whose cost is a pass over the image;
+SIFT, whose pyramid depends only on the lowest octave) describes every detector's keypoints of an image, and every
+reference count, in one call per group (issue 25: a repeated per-image pass): the descriptors are those of separate
+calls, bit for bit, and a sweep's cells are the same with ``runner.describe_together`` on or off."""
 import numpy as np
 import pytest
 from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
@@ -24,7 +25,7 @@ def keypoint_sets(gravel_small):
 
 
 def test_one_daisy_call_gives_each_detectors_descriptors_of_separate_calls(gravel_small, keypoint_sets):
-    assert DESCRIPTORS.get("daisy").per_image and not DESCRIPTORS.get("sift").per_image
+    assert DESCRIPTORS.get("daisy").together == "image" and DESCRIPTORS.get("brief").together is None
     requests = list(keypoint_sets.items()) + [("orb", keypoint_sets["orb"][:10]), ("sift", keypoint_sets["sift"][:0])]
     together = describe_batch(gravel_small, requests, "daisy")
     for (detector, keypoints), (kept, desc, seconds) in zip(requests, together):
@@ -35,12 +36,36 @@ def test_one_daisy_call_gives_each_detectors_descriptors_of_separate_calls(grave
     assert len(shares) == 1  # the call's time shared equally by the sets it served
 
 
-def test_a_descriptor_that_drops_keypoints_cannot_describe_them_together(gravel_small, keypoint_sets):
-    """BRISK drops keypoints near the border: one call for several sets could not be split back."""
+def test_sift_describes_sets_together_per_first_octave_as_separate_calls_do(gravel_small, keypoint_sets):
+    """SIFT builds its pyramid from the lowest octave it is given (-1: the image upsampled): its own keypoints
+    (octaves from -1) and ORB's and AKAZE's (at their own scale: from 0 here) take two calls, each equal to
+    separate calls bit for bit."""
+    from gtsweep.stages.describe import TOGETHER, prepare_keypoints
+
+    spec = DESCRIPTORS.get("sift")
+    firsts = {d: TOGETHER["first_octave"](prepare_keypoints(k, d, spec, spec.build({}), gravel_small.shape))
+              for d, k in keypoint_sets.items()}
+    assert firsts["sift"] == -1 and {firsts["orb"], firsts["akaze"]} == {0}
+    requests = list(keypoint_sets.items())
+    together = describe_batch(gravel_small, requests, "sift")
+    for (detector, keypoints), (kept, desc, _) in zip(requests, together):
+        alone_kept, alone_desc, _ = describe_timed(gravel_small, keypoints, "sift", detector)
+        assert np.array_equal(kept, alone_kept) and desc.tobytes() == alone_desc.tobytes()
+    assert together[1][2] == together[2][2] != together[0][2]  # akaze and orb shared one call, sift had its own
+
+
+def test_a_descriptor_that_drops_keypoints_cannot_describe_them_together(gravel_small, keypoint_sets,
+                                                                       monkeypatch):
+    """BRISK drops keypoints near the border: declared ``together``, one call for several sets could not be
+    split back, and says so."""
+    import dataclasses
+
+    brisk = dataclasses.replace(DESCRIPTORS.get("brisk"), together="image")
+    monkeypatch.setattr(describe_stage.DESCRIPTORS, "get", lambda name: brisk)
     border = keypoint_sets["orb"].copy()
     border[:5, 0] = 2.0
     with pytest.raises(GtsweepError, match="kept .* of .* keypoints"):
-        describe_batch(gravel_small, [("orb", border)], "brisk")
+        describe_batch(gravel_small, [("orb", border), ("orb", keypoint_sets["orb"])], "brisk")
 
 
 def test_the_memos_hold_every_description_asked_for_with_one_call_per_image(gravel_small, keypoint_sets,
@@ -62,13 +87,14 @@ def test_the_memos_hold_every_description_asked_for_with_one_call_per_image(grav
             assert desc.tobytes() == describe_timed(image, keypoints, "daisy", detector)[1].tobytes()
         assert memos[detector].computed == 0  # every description came from the one call per image
     assert describe_together({"orb": [(gravel_small, keypoint_sets["orb"])]}, "brief", {})["orb"].computed == 0
-    assert calls == [6, 3]  # not a per_image descriptor: nothing described ahead
+    assert calls == [6, 3]  # a descriptor without together: nothing described ahead
 
 
 def test_a_sweep_with_daisy_gives_the_same_cells_together_or_apart(tmp_path):
-    """Three oriented detectors and an unoriented one (NA for DAISY) on real pairs and a synthetic transform,
-    with survey Table 7's reference counts: the cells are identical, and together needs fewer pairing tasks."""
-    grid = ["detector=[akaze,sift,orb,gftt]", "descriptor=[daisy,brief]", "selector=[nms]",
+    """Three oriented detectors and an unoriented one (NA for DAISY; GFTT's small keypoints take SIFT's upsampled
+    pyramid) on real pairs and a synthetic transform, with survey Table 7's reference counts: the cells are
+    identical, and together needs fewer pairing tasks."""
+    grid = ["detector=[akaze,sift,orb,gftt]", "descriptor=[daisy,brief,sift]", "selector=[nms]",
             "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]",
             "experiment.reference_counts=[50,150]", "runner.backend=serial", "mlflow.enabled=false",
             "report.plots=false"]
@@ -78,5 +104,20 @@ def test_a_sweep_with_daisy_gives_the_same_cells_together_or_apart(tmp_path):
     assert_same_cells(tmp_path / "apart", tmp_path / "together")
     daisy = [s for s in together.summaries if s["methods"]["descriptor"] == "daisy"]
     assert {s["status"] for s in daisy} == {"ok", "na"}
-    # DAISY's 3 applicable detectors share one pairing task per (transform, shard) instead of one each
-    assert apart.stats.pairing_tasks - together.stats.pairing_tasks == 2 * (apart.stats.detection_tasks // 4)
+    # per (transform, shard): DAISY's 3 applicable detectors share one pairing task, SIFT's 4 one
+    assert apart.stats.pairing_tasks - together.stats.pairing_tasks == (2 + 3) * (apart.stats.detection_tasks // 4)
+
+
+def test_a_set_that_cannot_be_prepared_is_left_to_its_own_call(gravel_small, keypoint_sets):
+    """Under the survey's pass-through, MSD-like octaves (12) are no SIFT octave: that set comes back None (its
+    own call raises the one-line reason), the others are described together as before."""
+    msd_like = keypoint_sets["orb"][:20].copy()
+    msd_like[:, kp.OCTAVE] = 12
+    requests = [("akaze", keypoint_sets["akaze"]), ("msd", msd_like), ("orb", keypoint_sets["orb"])]
+    together = describe_batch(gravel_small, requests, "sift", "passthrough")
+    assert together[1] is None
+    with pytest.raises(GtsweepError, match="passthrough: octaves 12"):
+        describe_timed(gravel_small, msd_like, "sift", "msd", "passthrough")
+    for (detector, keypoints), result in zip(requests[::2], together[::2]):
+        assert result[1].tobytes() == describe_timed(gravel_small, keypoints, "sift", detector,
+                                                     "passthrough")[1].tobytes()

@@ -212,11 +212,11 @@ def evaluate_members(shard: dict, transform: str, transform_cfg: dict, members: 
                      dense=None) -> list[dict[Combination, list[dict] | Exception] | Exception]:
     """:func:`evaluate_views` for several detectors' keypoints (``members``: ``(detector, keypoints,
     detection_rows)``) described by one descriptor on one shard, each member's outcome or the exception that
-    stopped it. The views are built once, and a ``per_image`` descriptor (DAISY) describes every member's
-    keypoints of an image, and every reference count, in one call
+    stopped it. The views are built once, and a descriptor that can describe keypoint sets ``together`` (DAISY,
+    SIFT) describes every member's keypoints of an image, and every reference count, in one call (per group)
     (:func:`~gtsweep.evaluation.reuse.describe_together`)."""
     built, memos = None, {}
-    if DESCRIPTORS.get(descriptor).per_image:  # else views stream one at a time, as evaluate_views makes them
+    if DESCRIPTORS.get(descriptor).together:  # else views stream one at a time, as evaluate_views makes them
         built = list(views(shard, transform, transform_cfg, seed))
         asked = {detector: _asked(built, keypoints, experiment) for detector, keypoints, _ in members}
         memos = describe_together(asked, descriptor, descriptor_params, experiment.get("foreign_scale"), dense)

@@ -81,14 +81,14 @@ class DescribeOnce:
 def describe_together(requests: dict[str, list[tuple[np.ndarray, np.ndarray]]], descriptor: str, params: dict,
                       foreign_scale: str | None = None, dense=None) -> dict[str, DescribeOnce]:
     """A memo per detector holding the descriptions ``requests`` asks for (``{detector: [(image, keypoints),
-    ...]}``), made with one descriptor call per image for a ``per_image`` descriptor (DAISY:
-    :func:`gtsweep.stages.describe.describe_batch`): every detector's keypoint sets of an image, every reference
-    count of survey Table 7, in one pass over the image. Descriptors equal those of separate calls; each set's
+    ...]}``), made with as few descriptor calls per image as a descriptor that describes keypoint sets
+    ``together`` allows (:func:`gtsweep.stages.describe.describe_batch`; DAISY: one pass over the image for every
+    detector's keypoint sets and every reference count of survey Table 7; SIFT: one per first octave). Descriptors equal those of separate calls; each set's
     seconds are its share of the call. Images are matched by identity (the views of one task). Any other
     descriptor, a pairing the survey calls NA, or a batch that fails leaves the memos empty: they describe as
     before (and raise as before)."""
     memos = {detector: DescribeOnce(descriptor, detector, params, foreign_scale, dense) for detector in requests}
-    if not DESCRIPTORS.get(descriptor).per_image:
+    if not DESCRIPTORS.get(descriptor).together:
         return memos
     images: dict[int, tuple[np.ndarray, dict]] = {}
     for detector, asked in requests.items():
@@ -105,5 +105,6 @@ def describe_together(requests: dict[str, list[tuple[np.ndarray, np.ndarray]]], 
         except GtsweepError:
             continue
         for ((detector, _), chosen), result in zip(sets.items(), results):
-            memos[detector].hold(image, chosen, result)
+            if result is not None:
+                memos[detector].hold(image, chosen, result)
     return memos

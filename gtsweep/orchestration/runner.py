@@ -2,11 +2,12 @@
 
 Images are loaded once per shard (and put to the executor once); one detection task per (shard, transform,
 detector, selector) feeds every descriptor's pairing task on that shard; one pairing task per (shard, descriptor)
-serves every matcher and estimator cell of that descriptor (descriptors are computed once). A ``per_image``
-descriptor (DAISY, whose cost is a pass over the image) gets one pairing task per (shard, transform) for all
-detectors, which describes each image once (``runner.describe_together``; the results are the same either
-way). A cell is finished when all its shards are; the ``on_cell`` callback then writes it (and logs it), so a
-killed sweep loses only the cells in flight.
+serves every matcher and estimator cell of that descriptor (descriptors are computed once). A descriptor that
+describes keypoint sets ``together`` (DAISY, whose cost is a pass over the image; SIFT, whose pyramid depends only
+on the lowest octave) gets one pairing task per (shard, transform) for all detectors, which describes each image
+once per group (``runner.describe_together``; the results are the same either way). A cell is finished when all
+its shards are; the ``on_cell`` callback then writes it (and logs it), so a killed sweep loses only the cells in
+flight.
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ class PairingJob:
 
 @dataclass
 class PairingGroup:
-    """One pairing task for several detectors' pairing jobs of one shard (a ``per_image`` descriptor)."""
+    """One pairing task for several detectors' pairing jobs of one shard (a descriptor with ``together``)."""
 
     pairings: list[PairingJob]
 
@@ -123,7 +124,7 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
 def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], seed: int,
            cache_dir: str | None, together: bool = True) -> int:
     """The task graph: each detection task's keypoints are passed to its pairing tasks; every task is tagged
-    with its job. With ``together``, a ``per_image`` descriptor's pairing jobs of one (transform, shard) share
+    with its job. With ``together``, the pairing jobs of a descriptor that describes keypoint sets together of one (transform, shard) share
     one task (:class:`PairingGroup`). Returns the number of pairing tasks."""
     refs = {kind: [executor.put(shard) for shard in kind_shards] for kind, kind_shards in shards.items()}
     groups: dict[tuple, list[tuple[PairingJob, object]]] = defaultdict(list)
@@ -135,7 +136,7 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
                                      tag=job, num_returns=2)
         for pairing in job.pairings:
             args = _pairing_args(grid, pairing, seed)
-            if together and DESCRIPTORS.get(args[1]).per_image:
+            if together and DESCRIPTORS.get(args[1]).together:
                 groups[(job.transform, job.shard, repr(args[1:]))].append((pairing, payload))
                 continue
             executor.submit(tasks.pair_shard, shard, job.transform, transform_cfg, payload, *args, cache_dir,

@@ -4,7 +4,8 @@ in-process or as Ray tasks.
 A *shard* is a few images (synthetic transforms) or image pairs (real pairs) with their pixels. One detection task
 runs per (shard, transform, detector, selector); its keypoints are reused by every descriptor's pairing task. A
 pairing task evaluates every (matcher, estimator) combination of the grid on one descriptor's pairs, for one
-detector, or for every detector of a ``per_image`` descriptor (DAISY), which then describes each image once. What is
+detector, or for every detector of a descriptor that describes keypoint sets together (DAISY, SIFT), which then
+describes each image once (per group). What is
 computed per view (the keypoint budget, the reference counts, a failing matcher or estimator costing only its own
 combinations) is science: :mod:`gtsweep.evaluation.evaluate`; these functions only ship it.
 Keypoints travel as ``(N, 7)`` arrays (``cv2.KeyPoint`` does not pickle). A task never raises: an NA pairing
@@ -87,8 +88,8 @@ def pair_shard_members(shard: dict, transform: str, transform_cfg: dict, detecto
                        methods: dict | None, cache_dir: str | None, *detections: dict) -> dict:
     """:func:`pair_shard` for several detectors' detections of one shard (``detections``, one per detector, as
     top-level arguments so the executor resolves them) described by one descriptor: ``{"parts": [each
-    detector's pair_shard result without its timing], "dense": counts}``, with when the task ran. A ``per_image``
-    descriptor (DAISY) describes all detectors' keypoints of an image in one call
+    detector's pair_shard result without its timing], "dense": counts}``, with when the task ran. A descriptor
+    with ``together`` (DAISY, SIFT) describes all detectors' keypoints of an image in one call per group
     (:func:`~gtsweep.evaluation.evaluate.evaluate_members`); one detector's failure is its own."""
     started = time.time()
     dense = DenseMapCache(cache_dir)

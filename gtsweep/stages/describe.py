@@ -32,6 +32,17 @@ _x = cv2.xfeatures2d
 HAMMING, L2 = "hamming", "l2"
 
 
+def _first_octave(prepared: np.ndarray) -> int:
+    """The octave OpenCV's SIFT builds its pyramid from for these keypoints: the lowest, at most 0."""
+    return min(int(scales.unpack_sift_octave(prepared[:, kp.OCTAVE].astype(np.int64))[0].min()), 0)
+
+
+#: How a descriptor with ``together`` groups keypoint sets of one image into calls (sets of one group are
+#: described by one call, with the descriptors separate calls give): DAISY's cost is a pass over the image and a
+#: keypoint's descriptor does not depend on the others; SIFT's pyramid depends only on the lowest octave given.
+TOGETHER = {"image": lambda prepared: 0, "first_octave": _first_octave}
+
+
 @dataclass(frozen=True, kw_only=True)
 class DescriptorSpec(Method):
     """A descriptor, how its vectors are compared, and what keypoints it can describe."""
@@ -44,14 +55,18 @@ class DescriptorSpec(Method):
     #: How it reads a keypoint's octave field (a key of :data:`gtsweep.stages.scales.SCALE_SPACES`); None: it
     #: ignores the field, and foreign keypoints get octave 0.
     scale_space: str | None = None
-    #: Its cost is a pass over the whole image, nearly none per keypoint, and each keypoint's descriptor is
-    #: independent of the others it is given (DAISY: 280 ms for 1 keypoint or 1000 on a 1288×964 view): a sweep
-    #: describes every detector's keypoints of an image in one call (:func:`describe_batch`).
-    per_image: bool = False
+    #: Several keypoint sets of one image (every detector's, every reference count) can be described in one
+    #: call, grouped as :data:`TOGETHER` says, with the descriptors separate calls give: ``image`` (DAISY, whose
+    #: cost is a pass over the image: 280 ms for 1 keypoint or 1000 on a 1288×964 view), ``first_octave`` (SIFT,
+    #: whose pyramid is built from the lowest octave given); None: one call per set (:func:`describe_batch`).
+    together: str | None = None
 
     def __post_init__(self):
         if self.norm not in (HAMMING, L2):
             raise BadInput(f"descriptor '{self.name}': norm must be {HAMMING} (binary) or {L2}, got {self.norm!r}")
+        if self.together is not None and self.together not in TOGETHER:
+            raise BadInput(f"descriptor '{self.name}': together must be one of {', '.join(TOGETHER)} or null, "
+                           f"got {self.together!r}")
         if self.scale_space is not None and self.scale_space not in scales.SCALE_SPACES:
             raise BadInput(f"descriptor '{self.name}': scale_space must be one of "
                            f"{', '.join(scales.SCALE_SPACES)} or null, got {self.scale_space!r}")
@@ -74,7 +89,7 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     _descriptor("surf", "SURF", lazy_factory("gtsweep.stages.surf", "SURF_create"),
                 {"hessianThreshold": 100.0, "nOctaves": 4, "nOctaveLayers": 3, **_NONLINEAR}, norm=L2),
     _descriptor("sift", "SIFT", cv2.SIFT_create, {"nOctaveLayers": 3, "sigma": 1.6}, norm=L2,
-                scale_space="sift"),
+                scale_space="sift", together="first_octave"),
     # descriptor_type 5 = DESCRIPTOR_MLDB
     _descriptor("akaze", "AKAZE", _x.AKAZE_create,
                 {"descriptor_type": 5, "descriptor_size": 0, "descriptor_channels": 3}, norm=HAMMING,
@@ -87,7 +102,7 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     # norm 100 = NRM_NONE
     _descriptor("daisy", "DAISY", _x.DAISY_create,
                 {"radius": 15.0, "q_radius": 3, "q_theta": 8, "q_hist": 8, "norm": 100, "interpolation": True,
-                 "use_orientation": True}, norm=L2, requires_orientation=True, per_image=True),
+                 "use_orientation": True}, norm=L2, requires_orientation=True, together="image"),
     # Beyond the survey: learned binary descriptors shipped with OpenCV, KAZE, and the learned XFeat.
     _descriptor("beblid", "BEBLID", _x.BEBLID_create, {**_BLID, "n_bits": 100}, norm=HAMMING),  # 512 bits
     _descriptor("teblid", "TEBLID", _x.TEBLID_create, {**_BLID, "n_bits": 102}, norm=HAMMING),  # 256 bits
@@ -158,35 +173,50 @@ def describe_timed(image: np.ndarray, keypoints: np.ndarray, name: str, detector
 
 
 def describe_batch(image: np.ndarray, requests: list[tuple[str, np.ndarray]], name: str,
-                   foreign_scale: str | None = None, **params) -> list[tuple[np.ndarray, np.ndarray, float]]:
+                   foreign_scale: str | None = None, **params) -> list[tuple[np.ndarray, np.ndarray, float] | None]:
     """:func:`describe_timed` for several keypoint sets of one image (``requests``: ``(detector, keypoints)``)
-    in one descriptor call, for a ``per_image`` descriptor: each set's ``(kept, descriptors, seconds)`` equals its
-    own call's, the seconds aside: the call's time is shared equally by the sets it served (the cost is the
-    image's). Raises :class:`GtsweepError` when the descriptor drops or reorders keypoints (it is then not
-    ``per_image``); a failed call raises as :func:`describe_timed`'s does."""
+    with as few calls as a descriptor that can describe them ``together`` allows: one for DAISY, one per first
+    octave for SIFT. Each set's ``(kept, descriptors, seconds)`` equals its own call's, the seconds aside: a
+    call's time is shared equally by the sets it served; None for a set whose keypoints cannot be prepared (its
+    own call raises why). Raises :class:`GtsweepError` when a call drops or
+    reorders keypoints (the descriptor cannot describe sets together); a failed call raises as
+    :func:`describe_timed`'s does."""
     spec = DESCRIPTORS.get(name)
+    if spec.together is None:
+        raise GtsweepError(f"descriptor '{name}' cannot describe several keypoint sets in one call")
     extractor = spec.build(params)
     foreign_scale = scales.check_foreign_scale(foreign_scale)
-    prepared = [prepare_keypoints(keypoints, detector, spec, extractor, np.shape(image)[:2], foreign_scale)
-                for detector, keypoints in requests]
-    sizes = [len(p) for p in prepared]
-    if sum(sizes) == 0:
-        return [(kp.empty(), _empty_descriptors(spec, extractor), 0.0) for _ in requests]
-    start = time.perf_counter()
-    try:
-        found, descriptors = extractor.compute(image, kp.to_keypoints(np.concatenate(prepared)))
-    except cv2.error as e:
-        raise GtsweepError(f"descriptor '{name}' failed on {', '.join(d for d, _ in requests)} keypoints: "
-                           f"{reason_line(e)}") from None
-    share = (time.perf_counter() - start) / sum(1 for size in sizes if size)
-    kept = kp.to_array(found) if descriptors is not None else kp.empty()
-    if len(kept) != sum(sizes) or descriptors is None:
-        raise GtsweepError(f"descriptor '{name}' kept {len(kept)} of {sum(sizes)} keypoints: it cannot describe "
-                           f"several detectors' keypoints in one call")
-    descriptors = np.ascontiguousarray(descriptors)
-    ends = np.cumsum(sizes)
-    return [(kept[end - size:end].copy(), descriptors[end - size:end].copy(), share) if size else
-            (kp.empty(), _empty_descriptors(spec, extractor), 0.0) for size, end in zip(sizes, ends)]
+    results: list[tuple | None] = [(kp.empty(), _empty_descriptors(spec, extractor), 0.0)] * len(requests)
+    prepared, groups = [], {}
+    for i, (detector, keypoints) in enumerate(requests):
+        try:
+            prepared.append(prepare_keypoints(keypoints, detector, spec, extractor, np.shape(image)[:2],
+                                              foreign_scale))
+        except GtsweepError:  # e.g. octaves the survey's pass-through cannot express: None, its own call says why
+            prepared.append(kp.empty())
+            results[i] = None
+            continue
+        if len(prepared[i]):
+            groups.setdefault(TOGETHER[spec.together](prepared[i]), []).append(i)
+    for members in groups.values():
+        batch = np.concatenate([prepared[i] for i in members])
+        start = time.perf_counter()
+        try:
+            found, descriptors = extractor.compute(image, kp.to_keypoints(batch))
+        except cv2.error as e:
+            raise GtsweepError(f"descriptor '{name}' failed on {', '.join(requests[i][0] for i in members)} "
+                               f"keypoints: {reason_line(e)}") from None
+        share = (time.perf_counter() - start) / len(members)
+        kept = kp.to_array(found) if descriptors is not None else kp.empty()
+        if descriptors is None or len(kept) != len(batch):
+            raise GtsweepError(f"descriptor '{name}' kept {len(kept)} of {len(batch)} keypoints: it cannot "
+                               f"describe several keypoint sets in one call")
+        end = 0
+        for i in members:
+            part = slice(end, end + len(prepared[i]))
+            results[i] = kept[part].copy(), np.ascontiguousarray(descriptors[part]), share
+            end = part.stop
+    return results
 
 
 def prepare_keypoints(keypoints: np.ndarray, detector: str, spec: DescriptorSpec, extractor, shape,
