@@ -75,26 +75,29 @@ def test_the_memos_hold_every_description_asked_for_with_one_call_per_image(grav
     monkeypatch.setattr("gtsweep.evaluation.reuse.describe_batch",
                         lambda image, requests, *a, **k: calls.append(len(requests)) or batch(image, requests, *a, **k))
     other = np.ascontiguousarray(gravel_small[::-1])
-    asked = {d: [(gravel_small, k), (gravel_small, k[:50]), (other, k)] for d, k in keypoint_sets.items()}
-    asked["gftt"] = [(gravel_small, keypoint_sets["orb"])]  # DAISY needs oriented keypoints: NA, left to its memo
+    asked = [(d, [(gravel_small, k), (gravel_small, k[:50]), (other, k)]) for d, k in keypoint_sets.items()]
+    asked.append(("orb", [(gravel_small, keypoint_sets["orb"][::2])]))  # ORB again, under another selector
+    asked.append(("gftt", [(gravel_small, keypoint_sets["orb"])]))  # DAISY needs oriented keypoints: NA
     memos = describe_together(asked, "daisy", {})
-    assert calls == [6, 3]  # one call per image: 3 detectors x 2 counts, then 3 detectors
-    for detector, pairs in asked.items():
+    assert calls == [7, 3]  # one call per image: 3 detectors x 2 counts and the second ORB member, then 3
+    for (detector, pairs), memo in zip(asked, memos):
+        if detector == "gftt":
+            continue
         for image, keypoints in pairs:
-            if detector == "gftt":
-                continue
-            kept, desc, _ = memos[detector].describe(image, keypoints)
+            kept, desc, _ = memo.describe(image, keypoints)
             assert desc.tobytes() == describe_timed(image, keypoints, "daisy", detector)[1].tobytes()
-        assert memos[detector].computed == 0  # every description came from the one call per image
-    assert describe_together({"orb": [(gravel_small, keypoint_sets["orb"])]}, "brief", {})["orb"].computed == 0
-    assert calls == [6, 3]  # a descriptor without together: nothing described ahead
+        assert memo.computed == 0  # every description came from the one call per image
+    (brief,) = describe_together([("orb", [(gravel_small, keypoint_sets["orb"])])], "brief", {})
+    assert brief.computed == 0 and brief.describe(gravel_small, keypoint_sets["orb"]) and brief.computed == 1
+    assert calls == [7, 3]  # a descriptor without together: nothing described ahead
 
 
 def test_a_sweep_with_daisy_gives_the_same_cells_together_or_apart(tmp_path):
     """Three oriented detectors and an unoriented one (NA for DAISY; GFTT's small keypoints take SIFT's upsampled
-    pyramid) on real pairs and a synthetic transform, with survey Table 7's reference counts: the cells are
-    identical, and together needs fewer pairing tasks."""
-    grid = ["detector=[akaze,sift,orb,gftt]", "descriptor=[daisy,brief,sift]", "selector=[nms]",
+    pyramid) under two selectors, on real pairs and a synthetic transform, with survey Table 7's reference counts:
+    the cells are identical to those of separate calls (``runner.describe_together=false``), and together needs
+    fewer pairing tasks."""
+    grid = ["detector=[akaze,sift,orb,gftt]", "descriptor=[daisy,brief,sift]", "selector=[nms,anms]",
             "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]",
             "experiment.reference_counts=[50,150]", "runner.backend=serial", "mlflow.enabled=false",
             "report.plots=false"]
@@ -104,8 +107,8 @@ def test_a_sweep_with_daisy_gives_the_same_cells_together_or_apart(tmp_path):
     assert_same_cells(tmp_path / "apart", tmp_path / "together")
     daisy = [s for s in together.summaries if s["methods"]["descriptor"] == "daisy"]
     assert {s["status"] for s in daisy} == {"ok", "na"}
-    # per (transform, shard): DAISY's 3 applicable detectors share one pairing task, SIFT's 4 one
-    assert apart.stats.pairing_tasks - together.stats.pairing_tasks == (2 + 3) * (apart.stats.detection_tasks // 4)
+    # per (transform, shard): DAISY's 3 applicable detectors under 2 selectors share one pairing task, SIFT's 4
+    assert apart.stats.pairing_tasks - together.stats.pairing_tasks == (5 + 7) * (apart.stats.detection_tasks // 8)
 
 
 def test_a_set_that_cannot_be_prepared_is_left_to_its_own_call(gravel_small, keypoint_sets):
@@ -121,3 +124,27 @@ def test_a_set_that_cannot_be_prepared_is_left_to_its_own_call(gravel_small, key
     for (detector, keypoints), result in zip(requests[::2], together[::2]):
         assert result[1].tobytes() == describe_timed(gravel_small, keypoints, "sift", detector,
                                                      "passthrough")[1].tobytes()
+
+
+def test_a_crashed_group_task_runs_each_detector_by_itself(tmp_path, monkeypatch):
+    """A group task that dies (its worker, or one member's detection task) costs no cell: each detector's
+    pairing job runs again by itself, as without groups, and the cells equal those of a run without groups."""
+    from gtsweep.orchestration import tasks
+
+    grid = ["detector=[akaze,sift]", "descriptor=[sift]", "selector=[nms]", "transform=[incremental]",
+            "runner.backend=serial", "mlflow.enabled=false", "report.plots=false"]
+    apart = run_sweep(compose_config(tiny_overrides(tmp_path, *grid, "runner.describe_together=false")),
+                      tmp_path / "apart")
+
+    real = tasks.pair_shard_members
+
+    def crash_in_groups(shard, transform, transform_cfg, detectors, *rest):
+        if len(detectors) > 1:
+            raise MemoryError("the worker died")
+        return real(shard, transform, transform_cfg, detectors, *rest)
+    monkeypatch.setattr(tasks, "pair_shard_members", crash_in_groups)
+    crashed = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "crashed")
+    assert [s["status"] for s in crashed.summaries] == ["ok", "ok"]
+    assert_same_cells(tmp_path / "apart", tmp_path / "crashed")
+    groups = apart.stats.detection_tasks // 2
+    assert crashed.stats.pairing_tasks == groups + apart.stats.pairing_tasks  # each group, then its jobs alone

@@ -209,26 +209,44 @@ def pair_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list
 
 def evaluate_members(shard: dict, transform: str, transform_cfg: dict, members: list[tuple], descriptor: str,
                      descriptor_params: dict, experiment: dict, seed: int, matchers: dict, estimators: dict,
-                     dense=None) -> list[dict[Combination, list[dict] | Exception] | Exception]:
+                     dense=None, together: bool = True) -> list[dict[Combination, list[dict] | Exception] | Exception]:
     """:func:`evaluate_views` for several detectors' keypoints (``members``: ``(detector, keypoints,
     detection_rows)``) described by one descriptor on one shard, each member's outcome or the exception that
-    stopped it. The views are built once, and a descriptor that can describe keypoint sets ``together`` (DAISY,
-    SIFT) describes every member's keypoints of an image, and every reference count, in one call (per group)
-    (:func:`~gtsweep.evaluation.reuse.describe_together`)."""
-    built, memos = None, {}
-    if DESCRIPTORS.get(descriptor).together:  # else views stream one at a time, as evaluate_views makes them
-        built = list(views(shard, transform, transform_cfg, seed))
-        asked = {detector: _asked(built, keypoints, experiment) for detector, keypoints, _ in members}
+    stopped it. With ``together``, a descriptor that describes keypoint sets together (DAISY, SIFT) describes
+    every member's keypoints of an image, and every reference count, in one call per group
+    (:func:`~gtsweep.evaluation.reuse.describe_together`), one shard item (its views) at a time."""
+    if not (together and DESCRIPTORS.get(descriptor).together):
+        return [_evaluated(lambda: evaluate_views(shard, transform, transform_cfg, keypoints, rows, detector,
+                                                  descriptor, descriptor_params, experiment, seed, matchers,
+                                                  estimators, dense)) for detector, keypoints, rows in members]
+    outcomes: list = [{(m, e): [] for m in matchers for e in estimators} for _ in members]
+    done = 0  # views of the items before this one
+    for item in shard["items"]:
+        part = {**shard, "items": [item]}
+        built = list(views(part, transform, transform_cfg, seed))
+        span = slice(done, done + len(built))
+        done = span.stop
+        asked = [(detector, _asked(built, keypoints[span], experiment)) for detector, keypoints, _ in members]
         memos = describe_together(asked, descriptor, descriptor_params, experiment.get("foreign_scale"), dense)
-    outcomes = []
-    for detector, keypoints, rows in members:
-        try:
-            outcomes.append(evaluate_views(shard, transform, transform_cfg, keypoints, rows, detector, descriptor,
-                                           descriptor_params, experiment, seed, matchers, estimators, dense,
-                                           memo=memos.get(detector), built=built))
-        except Exception as error:  # this member's cells fail; the others go on
-            outcomes.append(error)
+        for i, ((detector, keypoints, rows), memo) in enumerate(zip(members, memos)):
+            if isinstance(outcomes[i], Exception):
+                continue
+            found = _evaluated(lambda: evaluate_views(part, transform, transform_cfg, keypoints[span], rows[span],
+                                                      detector, descriptor, descriptor_params, experiment, seed,
+                                                      matchers, estimators, dense, memo=memo, built=built))
+            outcomes[i] = found if isinstance(found, Exception) else {
+                combination: rows_so_far if isinstance(rows_so_far, Exception) else
+                (found[combination] if isinstance(found[combination], Exception) else rows_so_far + found[combination])
+                for combination, rows_so_far in outcomes[i].items()}
     return outcomes
+
+
+def _evaluated(evaluate):
+    """``evaluate()``, or the exception that stopped it (one member's failure is its own)."""
+    try:
+        return evaluate()
+    except Exception as error:
+        return error
 
 
 def evaluate_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list, detection_rows: list[dict],

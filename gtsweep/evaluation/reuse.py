@@ -30,6 +30,10 @@ class _Seen:
     def __init__(self, image: np.ndarray):
         self._image, self._digest = weakref.ref(image), None
 
+    def same(self, image: np.ndarray) -> bool:
+        """The very array this memo saw (no hashing needed)."""
+        return self._image() is image
+
     def digest(self) -> bytes | None:
         if self._digest is None:
             image = self._image()
@@ -44,7 +48,8 @@ class DescribeOnce:
     ``foreign_scale``: where foreign keypoints are described (``experiment.foreign_scale``; None: ``own``).
 
     Calls are looked up by the keypoints' digest first; an image's content is hashed only when an earlier call
-    had the same keypoints (then both images are compared by digest), so an image described once is never hashed.
+    had the same keypoints on another array (then both images are compared by digest), so an image described once
+    is never hashed.
     An earlier image that no longer exists (a task's views hold theirs) cannot be compared: described again.
     Images are read, never changed in place (an image changed after its description would be compared as it is now).
     """
@@ -62,6 +67,8 @@ class DescribeOnce:
         image = np.asarray(image)
         seen = _Seen(image)
         for other, result in earlier:
+            if other.same(image):
+                return result
             digest = other.digest()
             if digest is not None and digest == seen.digest():
                 return result
@@ -78,33 +85,34 @@ class DescribeOnce:
         self._found.setdefault(_digest(chosen), []).append((_Seen(np.asarray(image)), result))
 
 
-def describe_together(requests: dict[str, list[tuple[np.ndarray, np.ndarray]]], descriptor: str, params: dict,
-                      foreign_scale: str | None = None, dense=None) -> dict[str, DescribeOnce]:
-    """A memo per detector holding the descriptions ``requests`` asks for (``{detector: [(image, keypoints),
-    ...]}``), made with as few descriptor calls per image as a descriptor that describes keypoint sets
-    ``together`` allows (:func:`gtsweep.stages.describe.describe_batch`; DAISY: one pass over the image for every
-    detector's keypoint sets and every reference count of survey Table 7; SIFT: one per first octave). Descriptors equal those of separate calls; each set's
-    seconds are its share of the call. Images are matched by identity (the views of one task). Any other
-    descriptor, a pairing the survey calls NA, or a batch that fails leaves the memos empty: they describe as
-    before (and raise as before)."""
-    memos = {detector: DescribeOnce(descriptor, detector, params, foreign_scale, dense) for detector in requests}
+def describe_together(requests: list[tuple[str, list[tuple[np.ndarray, np.ndarray]]]], descriptor: str,
+                      params: dict, foreign_scale: str | None = None, dense=None) -> list[DescribeOnce]:
+    """A memo per member of ``requests`` (``[(detector, [(image, keypoints), ...]), ...]``; one detector may be
+    several members, e.g. under two selectors) holding the descriptions it asks for, made with as few descriptor
+    calls per image as a descriptor that describes keypoint sets ``together`` allows
+    (:func:`gtsweep.stages.describe.describe_batch`; DAISY: one pass over the image for every member's keypoint
+    sets and every reference count of survey Table 7; SIFT: one per first octave). Descriptors equal those of
+    separate calls; each set's seconds are its share of the call. Images are matched by identity (the views of
+    one task). Any other descriptor, a pairing the survey calls NA, or a batch that fails leaves the memos empty:
+    they describe as before (and raise as before)."""
+    memos = [DescribeOnce(descriptor, detector, params, foreign_scale, dense) for detector, _ in requests]
     if not DESCRIPTORS.get(descriptor).together:
         return memos
     images: dict[int, tuple[np.ndarray, dict]] = {}
-    for detector, asked in requests.items():
+    for member, (detector, asked) in enumerate(requests):
         if applicability(detector, descriptor) is not None:
             continue
         for image, keypoints in asked:
             chosen = np.asarray(keypoints)
             _, sets = images.setdefault(id(image), (image, {}))
-            sets.setdefault((detector, _digest(chosen)), chosen)
+            sets.setdefault((member, _digest(chosen)), chosen)
     for image, sets in images.values():
         try:
-            results = describe_batch(image, [(d, chosen) for (d, _), chosen in sets.items()], descriptor,
-                                     foreign_scale, **params)
+            results = describe_batch(image, [(requests[m][0], chosen) for (m, _), chosen in sets.items()],
+                                     descriptor, foreign_scale, **params)
         except GtsweepError:
             continue
-        for ((detector, _), chosen), result in zip(sets.items(), results):
+        for ((member, _), chosen), result in zip(sets.items(), results):
             if result is not None:
-                memos[detector].hold(image, chosen, result)
+                memos[member].hold(image, chosen, result)
     return memos

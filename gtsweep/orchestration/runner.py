@@ -11,7 +11,7 @@ flight.
 """
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -35,9 +35,12 @@ class PairingJob:
 
 @dataclass
 class PairingGroup:
-    """One pairing task for several detectors' pairing jobs of one shard (a descriptor with ``together``)."""
+    """One pairing task for several detectors' pairing jobs of one shard (a descriptor with ``together``), and
+    each job's own :func:`~gtsweep.orchestration.tasks.pair_shard` arguments (``alone``): if the group's task
+    crashes (its worker died, or one member's detection task did), each job runs by itself, as without groups."""
 
     pairings: list[PairingJob]
+    alone: list[tuple] = field(default_factory=list)
 
 
 @dataclass
@@ -101,6 +104,11 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
     stats.pairing_tasks = submit(executor, grid, shards, jobs, seed, cache_dir,
                                  runner_cfg.get("describe_together", True))
     for job, result in executor.results():
+        if isinstance(job, PairingGroup) and "parts" not in result:  # crashed: each job by itself
+            for pairing, args in zip(job.pairings, job.alone):
+                executor.submit(tasks.pair_shard, *args, tag=pairing)
+            stats.pairing_tasks += len(job.pairings)
+            continue
         if isinstance(job, DetectionJob):
             stats.cache_hits += result.get("hits", 0)
             stats.cache_misses += result.get("misses", 0)
@@ -113,8 +121,7 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
             stats.dense_write_errors += dense.get("write_errors", 0)
         if isinstance(job, PairingGroup):  # each detector's part, with when the task ran
             ran = {k: result[k] for k in ("started", "ended") if k in result}
-            parts = result.get("parts") or [result] * len(job.pairings)  # a crashed task: every part's error
-            for pairing, part in zip(job.pairings, parts):
+            for pairing, part in zip(job.pairings, result["parts"]):
                 tracker.add(pairing, {**part, **ran})
         else:
             tracker.add(job, result)
@@ -124,32 +131,38 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
 def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], seed: int,
            cache_dir: str | None, together: bool = True) -> int:
     """The task graph: each detection task's keypoints are passed to its pairing tasks; every task is tagged
-    with its job. With ``together``, the pairing jobs of a descriptor that describes keypoint sets together of one (transform, shard) share
-    one task (:class:`PairingGroup`). Returns the number of pairing tasks."""
+    with its job. With ``together``, the pairing jobs of one (transform, shard) whose descriptor describes
+    keypoint sets together (DAISY, SIFT) share one task (:class:`PairingGroup`), submitted as soon as its last
+    member's detection is. Returns the number of pairing tasks."""
     refs = {kind: [executor.put(shard) for shard in kind_shards] for kind, kind_shards in shards.items()}
-    groups: dict[tuple, list[tuple[PairingJob, object]]] = defaultdict(list)
-    submitted = 0
+    planned = [(job, pairing, _pairing_args(grid, pairing, seed)) for job in jobs for pairing in job.pairings]
+    key = {id(pairing): (job.transform, job.shard, repr(args[1:])) for job, pairing, args in planned
+           if together and DESCRIPTORS.get(args[1]).together}
+    size = Counter(key.values())
+    groups: dict[tuple, PairingGroup] = {}
+    payloads: dict[int, list] = defaultdict(list)
+    submitted, args_of = 0, {id(pairing): args for _, pairing, args in planned}
     for job in jobs:
         transform_cfg = grid.transforms[job.transform]
         shard = refs[shard_kind(job.transform, transform_cfg)][job.shard]
         payload, _ = executor.submit(tasks.detect_shard, shard, *_detection_args(grid, job, seed, cache_dir),
                                      tag=job, num_returns=2)
         for pairing in job.pairings:
-            args = _pairing_args(grid, pairing, seed)
-            if together and DESCRIPTORS.get(args[1]).together:
-                groups[(job.transform, job.shard, repr(args[1:]))].append((pairing, payload))
+            alone = (shard, job.transform, transform_cfg, payload, *args_of[id(pairing)], cache_dir, together)
+            if id(pairing) not in key:
+                executor.submit(tasks.pair_shard, *alone, tag=pairing)
+                submitted += 1
                 continue
-            executor.submit(tasks.pair_shard, shard, job.transform, transform_cfg, payload, *args, cache_dir,
-                            tag=pairing)
-            submitted += 1
-    for (transform, index, _), members in groups.items():
-        transform_cfg = grid.transforms[transform]
-        pairings = [pairing for pairing, _ in members]
-        _, *args = _pairing_args(grid, pairings[0], seed)
-        executor.submit(tasks.pair_shard_members, refs[shard_kind(transform, transform_cfg)][index], transform,
-                        transform_cfg, [p.cells[0].detector for p in pairings], *args, cache_dir,
-                        *[payload for _, payload in members], tag=PairingGroup(pairings))
-        submitted += 1
+            group = groups.setdefault(key[id(pairing)], PairingGroup([]))
+            group.pairings.append(pairing)
+            group.alone.append(alone)
+            payloads[id(group)].append(payload)
+            if len(group.pairings) == size[key[id(pairing)]]:  # its last member: submit it now
+                _, *args = args_of[id(pairing)]
+                executor.submit(tasks.pair_shard_members, shard, job.transform, transform_cfg,
+                                [p.cells[0].detector for p in group.pairings], *args, cache_dir, together,
+                                *payloads.pop(id(group)), tag=group)
+                submitted += 1
     return submitted
 
 

@@ -71,21 +71,23 @@ def dense_counts(dense: DenseMapCache) -> dict:
 
 def pair_shard(shard: dict, transform: str, transform_cfg: dict, detection: dict, detector: str, descriptor: str,
                descriptor_params: dict, experiment: dict, seed: int, declared: dict | None = None,
-               methods: dict | None = None, cache_dir: str | None = None) -> dict:
+               methods: dict | None = None, cache_dir: str | None = None, together: bool = True) -> dict:
     """Describe, match and estimate poses for every view of a shard; returns ``{"by_method": {(matcher,
     estimator): {"rows": [...]} or a failure}}``, or one failure for all (the detection's, or the descriptor's),
     with when the task ran. ``methods``: ``{"matchers": {name: params}, "estimators": {name: params}}`` (no
     estimators outside the pose experiment); None: the survey's (``bf_ratio``, ``ransac``). ``cache_dir``: the
-    keypoint cache's directory, which also keeps dense descriptor maps (:class:`DenseMapCache`)."""
+    keypoint cache's directory, which also keeps dense descriptor maps (:class:`DenseMapCache`). ``together``
+    (``runner.describe_together``): a descriptor that describes keypoint sets together does so for Table 7's
+    reference counts of an image."""
     result = pair_shard_members(shard, transform, transform_cfg, [detector], descriptor, descriptor_params,
-                                experiment, seed, declared, methods, cache_dir, detection)
+                                experiment, seed, declared, methods, cache_dir, together, detection)
     (part,) = result.pop("parts")
     return {**part, **result}
 
 
 def pair_shard_members(shard: dict, transform: str, transform_cfg: dict, detectors: list[str], descriptor: str,
                        descriptor_params: dict, experiment: dict, seed: int, declared: dict | None,
-                       methods: dict | None, cache_dir: str | None, *detections: dict) -> dict:
+                       methods: dict | None, cache_dir: str | None, together: bool, *detections: dict) -> dict:
     """:func:`pair_shard` for several detectors' detections of one shard (``detections``, one per detector, as
     top-level arguments so the executor resolves them) described by one descriptor: ``{"parts": [each
     detector's pair_shard result without its timing], "dense": counts}``, with when the task ran. A descriptor
@@ -101,7 +103,7 @@ def pair_shard_members(shard: dict, transform: str, transform_cfg: dict, detecto
         declare(declared or {})
         matchers, estimators = build_methods(methods, experiment)
         outcomes = evaluate_members(shard, transform, transform_cfg, members, descriptor, descriptor_params,
-                                    experiment, seed, matchers, estimators, dense) if members else []
+                                    experiment, seed, matchers, estimators, dense, together) if members else []
     except Exception as e:
         outcomes = [e] * len(members)
     outcomes = iter(outcomes)
