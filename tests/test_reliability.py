@@ -407,7 +407,8 @@ def test_dense_descriptor_maps_are_counted_in_run_json_and_a_failed_write_warns_
     (blocked / "dense").write_text("not a folder")
     capsys.readouterr()
     outcome = run_sweep(compose_config(tiny_overrides(tmp_path, *grid, f"cache.dir={blocked}")), tmp_path / "b")
-    warnings = [line for line in capsys.readouterr().err.splitlines() if "dense descriptor maps" in line]
+    warnings = [line for line in capsys.readouterr().err.splitlines()
+                if line.startswith("gtsweep: warning:") and "dense descriptor maps" in line]
     assert len(warnings) == 1, warnings
     record = json.loads((tmp_path / "b" / "run.json").read_text())
     assert record["dense_map_write_errors"] > 0 and record["dense_map_hits"] == 0
