@@ -163,13 +163,13 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         finish(cell, {"rows": pd.DataFrame()})
     if stats.cache_write_errors:
         cache_note = f"{cache_note} ({stats.cache_write_errors} task(s) could not write to it and went on without)"
-        log.warning("%d task(s) could not write to the keypoint cache %s; they ran without it",
-                    stats.cache_write_errors, cache_dir)
+        log.info("%d task(s) could not write to the keypoint cache %s; they ran without it",  # the log file's copy
+                 stats.cache_write_errors, cache_dir)
         print(f"gtsweep: warning: {stats.cache_write_errors} task(s) could not write to the keypoint cache "
               f"{cache_dir}; they ran without it", file=sys.stderr)
     if stats.dense_write_errors:
         cache_note = f"{cache_note} ({stats.dense_write_errors} task(s) could not store dense descriptor maps)"
-        log.warning("%d task(s) could not write dense descriptor maps under %s", stats.dense_write_errors, cache_dir)
+        log.info("%d task(s) could not write dense descriptor maps under %s", stats.dense_write_errors, cache_dir)
         print(f"gtsweep: warning: {stats.dense_write_errors} task(s) could not write dense descriptor maps to "
               f"{Path(cache_dir) / 'dense'}; they computed them without storing", file=sys.stderr)
     ordered = [summaries[cell.key] for cell in grid.cells]
