@@ -140,7 +140,6 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
            if together and DESCRIPTORS.get(args[1]).together}
     size = Counter(key.values())
     groups: dict[tuple, PairingGroup] = {}
-    payloads: dict[int, list] = defaultdict(list)
     submitted, args_of = 0, {id(pairing): args for _, pairing, args in planned}
     for job in jobs:
         transform_cfg = grid.transforms[job.transform]
@@ -156,12 +155,11 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
             group = groups.setdefault(key[id(pairing)], PairingGroup([]))
             group.pairings.append(pairing)
             group.alone.append(alone)
-            payloads[id(group)].append(payload)
             if len(group.pairings) == size[key[id(pairing)]]:  # its last member: submit it now
                 _, *args = args_of[id(pairing)]
                 executor.submit(tasks.pair_shard_members, shard, job.transform, transform_cfg,
                                 [p.cells[0].detector for p in group.pairings], *args, cache_dir, together,
-                                *payloads.pop(id(group)), tag=group)
+                                *[detection for _, _, _, detection, *_ in group.alone], tag=group)
                 submitted += 1
     return submitted
 
