@@ -234,11 +234,15 @@ def evaluate_members(shard: dict, transform: str, transform_cfg: dict, members: 
             found = _evaluated(lambda: evaluate_views(part, transform, transform_cfg, keypoints[span], rows[span],
                                                       detector, descriptor, descriptor_params, experiment, seed,
                                                       matchers, estimators, dense, memo=memo, built=built))
-            outcomes[i] = found if isinstance(found, Exception) else {
-                combination: rows_so_far if isinstance(rows_so_far, Exception) else
-                (found[combination] if isinstance(found[combination], Exception) else rows_so_far + found[combination])
-                for combination, rows_so_far in outcomes[i].items()}
+            outcomes[i] = found if isinstance(found, Exception) else _extended(outcomes[i], found)
     return outcomes
+
+
+def _extended(so_far: dict, found: dict) -> dict:
+    """Per combination, the rows so far followed by ``found``'s, or the first exception that stopped it."""
+    return {combination: rows if isinstance(rows, Exception) else
+            found[combination] if isinstance(found[combination], Exception) else rows + found[combination]
+            for combination, rows in so_far.items()}
 
 
 def _evaluated(evaluate):
