@@ -78,11 +78,10 @@ class DescribeOnce:
         self.computed += 1
         return result
 
-    def hold(self, image: np.ndarray, keypoints: np.ndarray, result: tuple) -> None:
-        """Keep ``result``, computed elsewhere (:func:`describe_together`), as this memo's description of
-        ``keypoints`` in ``image``."""
-        chosen = np.asarray(keypoints)
-        self._found.setdefault(_digest(chosen), []).append((_Seen(np.asarray(image)), result))
+    def hold(self, image: np.ndarray, keypoints_digest: bytes, result: tuple) -> None:
+        """Keep ``result``, computed elsewhere (:func:`describe_together`), as this memo's description of the
+        keypoints whose :func:`_digest` is ``keypoints_digest`` in ``image``."""
+        self._found.setdefault(keypoints_digest, []).append((_Seen(np.asarray(image)), result))
 
 
 def describe_together(requests: list[tuple[str, list[tuple[np.ndarray, np.ndarray]]]], descriptor: str,
@@ -112,7 +111,7 @@ def describe_together(requests: list[tuple[str, list[tuple[np.ndarray, np.ndarra
                                      descriptor, foreign_scale, **params)
         except GtsweepError:
             continue
-        for ((member, _), chosen), result in zip(sets.items(), results):
+        for (member, digest), result in zip(sets, results):
             if result is not None:
-                memos[member].hold(image, chosen, result)
+                memos[member].hold(image, digest, result)
     return memos
