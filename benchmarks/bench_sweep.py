@@ -16,6 +16,7 @@ detectors' keypoints of an image in one call per first octave.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import shutil
 import tempfile
@@ -41,13 +42,17 @@ GRID = ["detector=[akaze,censure,orb,sift]", "descriptor=[brief,latch,orb,sift]"
         "dataset.n_absolute=4", "runner.shard_size=2"]
 
 
-def floor(cfg, threads: int) -> float:
+def floor(cfg, threads: int, part: int = 0, parts: int = 1, ready=None) -> tuple[float, float]:
     """The bare-OpenCV loop over the grid's applicable pairings, OpenCV on ``threads`` threads (-1: its default,
-    as gtsweep's serial backend; 1: as each Ray task)."""
+    as gtsweep's serial backend; 1: as each Ray task): its wall and CPU seconds. ``part`` of ``parts``: every
+    ``parts``-th pair from ``part`` on; ``ready``: a barrier the loop waits at before its clock starts."""
     grid, dataset = build_grid(cfg), load_dataset(cfg.dataset)
     pairs = [(p.reference.load(), p.test.load()) for kind in ("incremental", "absolute") for p in dataset.pairs(kind)]
+    pairs = pairs[part::parts]
     cv2.setNumThreads(threads)
-    start = time.perf_counter()
+    if ready is not None:
+        ready.wait()
+    start, cpu = time.perf_counter(), time.process_time()
     for detector, dcfg in grid.detectors.items():
         det = DETECTORS.get(detector).build(dcfg["params"])
         found = []
@@ -78,7 +83,28 @@ def floor(cfg, threads: int) -> float:
                     dst = np.float32([kr[m.trainIdx].pt for m in good])
                     cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0, maxIters=2000)
     cv2.setNumThreads(-1)
-    return time.perf_counter() - start
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def _floor_part(cfg, part: int, parts: int, ready, results) -> None:
+    results.put(floor(cfg, 1, part, parts, ready))
+
+
+def floor_in_parallel(cfg, processes: int = 2) -> tuple[float, float]:
+    """The 1-thread floor split over ``processes`` processes started together (each every ``processes``-th pair):
+    the wall time until the last one ends and their CPU seconds. Against the 1-thread floor in one process this is
+    the machine's own ceiling for ``processes`` Ray workers: what running OpenCV on the other cores costs (shared
+    caches, memory bandwidth, the host's clocks), with no orchestration at all."""
+    context = multiprocessing.get_context("spawn")
+    ready, results = context.Barrier(processes), context.Queue()
+    workers = [context.Process(target=_floor_part, args=(cfg, i, processes, ready, results))
+               for i in range(processes)]
+    for worker in workers:
+        worker.start()
+    timings = [results.get() for _ in workers]
+    for worker in workers:
+        worker.join()
+    return max(wall for wall, _ in timings), sum(cpu for _, cpu in timings)
 
 
 def timed_sweep(cfg, out: Path):
@@ -129,7 +155,7 @@ def bench(label: str, extra: list[str]) -> None:
         compose = lambda more: compose_config(GRID + extra + apart + more)  # noqa: E731
         cfg = compose([f"cache.dir={work}/c0", "runner.backend=serial"])
         load_dataset(cfg.dataset)  # render the data set once, outside the timings
-        bare = floor(cfg, -1)
+        bare, _ = floor(cfg, -1)
         print(f"[{label}] bare OpenCV loop (the floor):       {bare:7.2f} s  (OpenCV's default threads)")
         serial, outcome, memory = timed_sweep(cfg, work / "serial")
         print(f"[{label}] gtsweep serial (cold cache):        {serial:7.2f} s  ({serial / bare:.2f}x the floor, "
@@ -139,8 +165,11 @@ def bench(label: str, extra: list[str]) -> None:
                                                     "runner.describe_together=true"]), work / "together")
         print(f"[{label}] gtsweep serial, describing together:{together:7.2f} s  ({together / bare:.2f}x the floor, "
               f"{together / serial - 1:+.1%} against separate calls; {outcome.stats.pairing_tasks} pairing tasks)")
-        bare1 = floor(cfg, 1)
-        print(f"[{label}] bare OpenCV loop, 1 thread:         {bare1:7.2f} s")
+        bare1, cpu1 = floor(cfg, 1)
+        print(f"[{label}] bare OpenCV loop, 1 thread:         {bare1:7.2f} s  ({cpu1:.2f} CPU-s)")
+        bare2, cpu2 = floor_in_parallel(cfg)
+        print(f"[{label}] bare OpenCV loop, 2 processes:      {bare2:7.2f} s  ({bare1 / bare2:.2f}x faster than 1: "
+              f"the machine's ceiling for 2 workers; {cpu2:.2f} CPU-s, {cpu2 / cpu1 - 1:+.1%} against 1 process)")
         cfg1 = compose([f"cache.dir={work}/c1", "runner.num_cpus=1"])
         start1 = ray_start(cfg1)
         one, _, memory1 = timed_sweep(cfg1, work / "ray1")
