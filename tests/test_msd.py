@@ -87,6 +87,11 @@ def test_settings_outside_the_fast_path_are_opencvs():
     assert MSD_create().fast
 
 
+def test_a_view_smaller_than_the_search_area_has_no_keypoints():
+    assert MSD_create().detect_array(_texture((12, 40))).shape == (0, len(kp.COLUMNS))
+    assert MSD_create().detect(_texture((12, 40))) == []
+
+
 def test_the_registry_detects_with_it():
     image = _texture((240, 320), seed=5)
     expected = _opencv(image, m_th_saliency=100.0)

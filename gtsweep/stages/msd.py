@@ -36,6 +36,8 @@ def _levels(image: np.ndarray, patch_radius: int, search_radius: int, scale_fact
     if n_scales == -1:  # cvFloor(log(min / (2 (r_s + r_b) + 1.0)) / std::log(float))
         n_scales = math.floor(math.log(min(cols, rows) / ((patch_radius + search_radius) * 2.0 + 1))
                               / float(np.log(scale_factor)))
+    if n_scales < 1:  # a view too small for one search area (msd.cpp would index an empty pyramid)
+        return []
     levels = [image]
     for level in range(1, n_scales):
         scale = np.float32(1) / np.power(scale_factor, np.float32(level))
