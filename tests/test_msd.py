@@ -87,6 +87,47 @@ def test_settings_outside_the_fast_path_are_opencvs():
     assert MSD_create().fast
 
 
+def _mask_off_double_rounded_lines(shape, factor):
+    """A mask zeroing the rows and columns where cvRound(j * pow(f, r)) in double and in float32 disagree."""
+    mask = np.full(shape, 255, np.uint8)
+    f = float(np.float32(factor))
+    for r in range(1, 6):
+        for j in range(max(shape)):
+            exact, single = int(np.rint(j * f ** r)), int(np.rint(np.float32(j) * np.float32(f ** r)))
+            if exact != single:
+                mask[min(exact, shape[0] - 1), :] = 0
+                mask[:, min(exact, shape[1] - 1)] = 0
+    return mask
+
+
+# Cases a review found where float32 NumPy arithmetic and OpenCV's (libm powf/logf, a double pow) part ways.
+@pytest.mark.parametrize("shape, params, with_mask", [
+    ((200, 947), {"m_scale_factor": 1.29, "m_th_saliency": 30.0}, False),  # level sizes: powf
+    ((49, 60), {"m_scale_factor": 1.4, "m_search_area_radius": 9, "m_th_saliency": 30.0}, False),  # logf
+    ((240, 320), {"m_scale_factor": 1.015, "m_n_scales": 16, "m_th_saliency": 30.0}, False),  # positions: powf
+    ((240, 320), {"m_scale_factor": 1.1, "m_th_saliency": 30.0, "m_nms_radius": 1}, True),  # mask: double pow
+    ((120, 160), {"m_patch_radius": 1, "m_search_area_radius": 1, "m_kNN": 10}, False),  # k > offsets: INT_MAX
+    ((120, 160), {"m_search_area_radius": 0}, False),  # no offsets at all
+    ((120, 160), {"m_nms_radius": -1, "m_th_saliency": 100.0}, False),  # no suppression
+])
+def test_keypoints_equal_opencv_where_the_arithmetic_is_subtle(shape, params, with_mask):
+    image = _texture(shape, seed=1)
+    mask = _mask_off_double_rounded_lines(shape, params["m_scale_factor"]) if with_mask else None
+    expected = _opencv(image, mask, **params)
+    assert len(expected) > 0
+    np.testing.assert_array_equal(MSD_create(**params).detect_array(image, mask), expected)
+
+
+def test_masks_msd_cpp_reads_otherwise_are_opencvs():
+    image = _texture((120, 160), seed=2)
+    wide = np.zeros(image.shape, np.int32)
+    wide[20:100, 30:130] = 1  # msd.cpp reads a mask's raw bytes: an int32 mask is not what its values say
+    np.testing.assert_array_equal(MSD_create().detect_array(image, wide), _opencv(image, wide))
+    full = np.full(image.shape, 255, np.uint8)
+    small = {"m_patch_radius": 1, "m_search_area_radius": 1}  # a refined point may leave the view: delegated
+    assert not MSD_create(**small)._covered(image, full) and MSD_create(**small)._covered(image, None)
+
+
 def test_a_view_smaller_than_the_search_area_has_no_keypoints():
     assert MSD_create().detect_array(_texture((12, 40))).shape == (0, len(kp.COLUMNS))
     assert MSD_create().detect(_texture((12, 40))) == []

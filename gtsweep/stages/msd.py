@@ -18,6 +18,9 @@ keypoints vary from call to call) are handed to OpenCV's implementation.
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import functools
 import math
 
 import cv2
@@ -27,6 +30,17 @@ from gtsweep.stages import keypoints as kp
 
 #: Rows of centres per strip: a strip's few working arrays stay in the core's cache.
 STRIP_ROWS = 64
+#: msd.cpp's start value of the k smallest sums (INT_MAX): with k above the offsets' count it enters the mean.
+_UNSET = np.float32(2 ** 31 - 1)
+
+
+@functools.lru_cache(maxsize=None)
+def _logf(value: float) -> float:
+    """The C library's ``logf``, which msd.cpp's ``std::log(float)`` calls (NumPy's float32 log is its own SIMD
+    code and differs in the last bit for some inputs)."""
+    libm = ctypes.CDLL(ctypes.util.find_library("m"))
+    libm.logf.restype, libm.logf.argtypes = ctypes.c_float, [ctypes.c_float]
+    return float(libm.logf(value))
 
 
 def _levels(image: np.ndarray, patch_radius: int, search_radius: int, scale_factor: np.float32,
@@ -35,12 +49,12 @@ def _levels(image: np.ndarray, patch_radius: int, search_radius: int, scale_fact
     rows, cols = image.shape
     if n_scales == -1:  # cvFloor(log(min / (2 (r_s + r_b) + 1.0)) / std::log(float))
         n_scales = math.floor(math.log(min(cols, rows) / ((patch_radius + search_radius) * 2.0 + 1))
-                              / float(np.log(scale_factor)))
+                              / _logf(float(scale_factor)))
     if n_scales < 1:  # a view too small for one search area (msd.cpp would index an empty pyramid)
         return []
     levels = [image]
     for level in range(1, n_scales):
-        scale = np.float32(1) / np.power(scale_factor, np.float32(level))
+        scale = np.float32(1) / (scale_factor ** np.float32(level))  # a NumPy scalar's **: libm's powf
         size = (int(np.rint(np.float32(cols) * scale)), int(np.rint(np.float32(rows) * scale)))
         levels.append(cv2.resize(image, size, interpolation=cv2.INTER_AREA))
     return levels
@@ -78,7 +92,7 @@ def saliency(image: np.ndarray, patch_radius: int = 3, search_radius: int = 5, k
     for top in range(border, rows - border, STRIP_ROWS):
         bottom = min(top + STRIP_ROWS, rows - border)
         height = bottom - top
-        smallest = np.full((knn, height, width), np.inf, np.float32)
+        smallest = np.full((knn, height, width), _UNSET, np.float32)
         spare = (np.empty((height, width), np.float32), np.empty((height, width), np.float32))
         for dy, dx in half:
             left, right = max(dx, 0), max(-dx, 0)  # the map's extra columns
@@ -103,6 +117,7 @@ def _local_maxima(level_saliency: np.ndarray, border: int, radius: int, threshol
     inner = level_saliency[border:level_saliency.shape[0] - border, border:level_saliency.shape[1] - border]
     if inner.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    radius = max(radius, 0)  # msd.cpp's window loop is empty for a negative radius: no suppression
     window = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * radius + 1, 2 * radius + 1))
     largest = cv2.dilate(inner, window)  # the default border never wins: the window is clipped
     rows, cols = np.nonzero((inner > threshold) & (inner >= largest))
@@ -144,21 +159,28 @@ class FastMSD:
         self.fast = (not m_compute_orientation and int(m_nms_scale_radius) == 0
                      and side * side * 255 ** 2 * int(m_kNN) < 2 ** 24)
 
-    def _covered(self, image: np.ndarray) -> bool:
-        return self.fast and image.ndim == 2 and image.dtype == np.uint8
+    def _covered(self, image: np.ndarray, mask: np.ndarray | None) -> bool:
+        """Inputs whose keypoints this module reproduces: a gray uint8 view; a mask of bytes (msd.cpp reads its
+        raw bytes), and only where a refined point cannot leave the view (r_s + r_b >= 5: msd.cpp's second mask
+        read is unchecked)."""
+        p = self.params
+        masked = mask is not None and mask.size > 0
+        return (self.fast and image.ndim == 2 and image.dtype == np.uint8
+                and (not masked or (mask.ndim == 2 and mask.dtype.itemsize == 1
+                                    and int(p["m_patch_radius"]) + int(p["m_search_area_radius"]) >= 5)))
 
     def _opencv(self):
         return cv2.xfeatures2d.MSDDetector_create(*self.params.values())
 
     def detect(self, image: np.ndarray, mask: np.ndarray | None = None) -> list[cv2.KeyPoint]:
-        if not self._covered(image):
+        if not self._covered(image, mask):
             return list(self._opencv().detect(image, mask))
         return kp.to_keypoints(self.detect_array(image, mask))
 
     def detect_array(self, image: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         """The keypoints as an ``(N, 7)`` array (:mod:`gtsweep.stages.keypoints`) in OpenCV's order: what
         :func:`~gtsweep.stages.keypoints.to_array` makes of OpenCV's, without the ``cv2.KeyPoint`` objects."""
-        if not self._covered(image):
+        if not self._covered(image, mask):
             return kp.to_array(self._opencv().detect(image, mask))
         p = self.params
         rs, rb, radius = int(p["m_patch_radius"]), int(p["m_search_area_radius"]), int(p["m_nms_radius"])
@@ -169,10 +191,11 @@ class FastMSD:
         for r, level in enumerate(_levels(image, rs, rb, factor, int(p["m_n_scales"]))):
             sal = saliency(level, rs, rb, int(p["m_kNN"]))
             j, i = _local_maxima(sal, border, radius, threshold)
-            power = np.float32(float(factor) ** r)  # std::pow(float, int) is float here (sizes agree only so)
-            if mask is not None:
-                at = (np.minimum(np.rint(j.astype(np.float32) * power).astype(np.int64), rows0 - 1),
-                      np.minimum(np.rint(i.astype(np.float32) * power).astype(np.int64), cols0 - 1))
+            power = factor ** np.float32(r)  # positions and size: powf, as msd.cpp's results show
+            if mask is not None:  # the first mask read: cvRound(j * pow(scale, r)) in double
+                full = float(factor) ** r
+                at = (np.minimum(np.rint(j * full).astype(np.int64), rows0 - 1),
+                      np.minimum(np.rint(i * full).astype(np.int64), cols0 - 1))
                 keep = mask[at] != 0
                 j, i = j[keep], i[keep]
             xc, xr = _refine(sal, i, j)
