@@ -26,6 +26,7 @@ from gtsweep.evaluation import schema
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.orchestration.results import by_variant, summary_table, swept_variants
 from gtsweep.report.labels import paper_label, shown_label, variant_label, variant_slug
+from gtsweep.report.pools import survey_selector
 from gtsweep.report.samples import Ties, Views, estimate, tied_with_best
 
 PAPER_DIR = PACKAGE_DIR / "data" / "survey"
@@ -236,13 +237,17 @@ def table_selectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
 
 
 def table_detectors(df: pd.DataFrame, views: Views | None = None, alpha: float = ALPHA) -> Table | None:
-    """Survey Table 3: per detector with its best selector, < 100 KPs, repeatability, ambiguity, time."""
+    """Survey Table 3: per detector with the survey's selector (NMS; ANMS for MSER, 4.1: "For all other detectors,
+    we use NMS"; else the one that ran), < 100 KPs, repeatability, ambiguity, time. Not the best selector by this
+    table's own numbers: that choice would read the results, and would weigh cells of different counts (the
+    sequential reproduction runs the other selectors only in its first round)."""
     detection = _detection(df)
-    detection = detection[detection.index.get_level_values("selector") != "none"]
+    detection = detection[detection.index.get_level_values("selector") != "none"].reset_index()
     if detection.empty:
         return None
     text = paper("table3_text.csv")
-    best = detection.reset_index().sort_values("repeatability", ascending=False).groupby("detector").head(1)
+    ran = detection.groupby("detector")["selector"].agg(lambda s: dict.fromkeys(s))
+    best = detection[detection["selector"] == detection["detector"].map(lambda d: survey_selector(d, ran[d]))]
     table = Table("table3_detectors", "", pd.DataFrame())
     out, entries = [], {}
     for row in best.sort_values("repeatability", ascending=False).itertuples():
@@ -256,8 +261,7 @@ def table_detectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
             record[column] = table.show(shown, column, cells, metric, said.get(metric), views=views)
         record[with_unit("time", _unit("t_detect"))] = fmt(row.t_detect, None, 3)
         out.append(record)
-    used = df[df["descriptor"].isna() & (df["status"] == "ok") & (df["selector"] != "none")]
-    table.title = f"Survey Table 3: detectors, best selector ({sample_note(used)})"
+    table.title = f"Survey Table 3: detectors, the survey's selector ({sample_note(pd.concat(entries.values()))})"
     table.cells = pd.DataFrame(out).set_index("detector")
     table.ties = tied_with_best(entries, "repeatability", views, alpha)
     return table
