@@ -413,3 +413,33 @@ def test_dense_descriptor_maps_are_counted_in_run_json_and_a_failed_write_warns_
     record = json.loads((tmp_path / "b" / "run.json").read_text())
     assert record["dense_map_write_errors"] > 0 and record["dense_map_hits"] == 0
     assert_same_cells(tmp_path / "first", tmp_path / "b")
+
+
+def test_entries_are_stored_as_float32_where_that_is_exact(tmp_path):
+    store = cache.KeypointCache(tmp_path)
+    exact = np.array([[10.5, 20.25, 31.0, -1.0, 0.0078125, 16712191.0, -1.0]])  # float32 values, SIFT's packed octave
+    inexact = np.array([[0.1, 2.0, 3.0, -1.0, 1.0, 0.0, -1.0]])  # 0.1 is not a float32
+    store.put("ab" * 32, exact, 5, 0.5)
+    store.put("cd" * 32, inexact, 5, 0.5)
+    dtypes = {}
+    for path in _entries(tmp_path):
+        with np.load(path) as entry:
+            dtypes[path.stem] = entry["keypoints"].dtype
+    assert dtypes == {"ab" * 32: np.float32, "cd" * 32: np.float64}
+    fresh = cache.KeypointCache(tmp_path)
+    for key, array in (("ab" * 32, exact), ("cd" * 32, inexact)):
+        found = fresh.get(key)[0]
+        assert found.dtype == np.float64 and np.array_equal(found, array)  # the same numbers back
+
+
+@pytest.mark.parametrize("selectors, raw_entries", [("[nms]", False), ("[nms,anms]", True)])
+def test_the_raw_detection_is_stored_only_when_two_selectors_share_it(tmp_path, selectors, raw_entries):
+    grid = ["detector=[orb]", "descriptor=[orb]", f"selector={selectors}", "transform=[incremental]",
+            "runner.backend=serial", "mlflow.enabled=false"]
+    outcome = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "run")
+    assert {s["status"] for s in outcome.summaries} == {"ok"}
+    names = [p.name for p in _entries(tmp_path / "cache")]
+    assert any(n.startswith(f"{cache.RAW}-") for n in names) == raw_entries
+    assert sum(not n.startswith(f"{cache.RAW}-") for n in names) == outcome.stats.cache_misses  # every selection
+    again = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "run2")
+    assert again.stats.cache_misses == 0  # the selected keypoints are what a later run reads

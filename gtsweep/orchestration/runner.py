@@ -51,6 +51,7 @@ class DetectionJob:
     shard: int
     cell: Cell | None = None  # the detection experiment's cell fed by this job
     pairings: list[PairingJob] = field(default_factory=list)
+    keep_raw: bool = True  # the detector's raw output to disk: another job selects from it too
 
 
 @dataclass
@@ -70,15 +71,17 @@ class RunStats:
 
 
 def plan(grid: Grid, n_shards: dict[str, int], pending: set[str]) -> list[DetectionJob]:
-    """Detection jobs (each with its pairing jobs) for the cells whose keys are in ``pending``."""
+    """Detection jobs (each with its pairing jobs) for the cells whose keys are in ``pending``. A job keeps its
+    detector's raw output in the cache only when another selector of the run selects from the same detection."""
     by_detection: dict[tuple, list[Cell]] = defaultdict(list)
     for cell in grid.cells:
         if cell.key in pending and cell.na_reason is None:
             by_detection[(cell.transform, cell.detector, cell.selector)].append(cell)
+    selectors = Counter((transform, detector) for transform, detector, _ in by_detection)
     jobs = []
     for (transform, detector, selector), cells in by_detection.items():
         for shard in range(n_shards[shard_kind(transform, grid.transforms[transform])]):
-            job = DetectionJob(transform, detector, selector, shard)
+            job = DetectionJob(transform, detector, selector, shard, keep_raw=selectors[transform, detector] > 1)
             by_descriptor: dict[str, list[Cell]] = defaultdict(list)
             for cell in cells:
                 if cell.descriptor is None:
@@ -235,7 +238,8 @@ def _merge(parts: dict[int, dict]) -> dict:
 def _detection_args(grid: Grid, job: DetectionJob, seed: int, cache_dir):
     method = {"detector": job.detector, "detector_cfg": grid.detectors[job.detector],
               "selector": job.selector, "selector_cfg": grid.selectors[job.selector]}
-    return job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir, grid.declared
+    return (job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir, grid.declared,
+            job.keep_raw)
 
 
 def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):

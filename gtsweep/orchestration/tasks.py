@@ -39,15 +39,16 @@ def _timed(started: float, result: dict) -> dict:
 
 
 def detect_shard(shard: dict, transform: str, transform_cfg: dict, method: dict, experiment: dict, seed: int,
-                 cache_dir: str | None, declared: dict | None = None):
+                 cache_dir: str | None, declared: dict | None = None, keep_raw: bool = True):
     """Detect and select on every view of a shard; returns ``(payload, summary)``.
 
     ``method``: detector, detector_cfg, selector, selector_cfg. ``payload`` (for the pairing tasks) holds the
     keypoints and rows per view; ``summary`` (for the driver) holds the rows, the cache counts (:func:`counts`; a
-    miss is one detector call) and when the task ran. ``declared``: the grid's methods declared in YAML.
+    miss is one detector call) and when the task ran. ``declared``: the grid's methods declared in YAML;
+    ``keep_raw``: store the detector's raw output in the cache (:func:`~gtsweep.orchestration.cache.detect_cached`).
     """
     started = time.time()
-    cache = KeypointCache(cache_dir)
+    cache = KeypointCache(cache_dir, keep_raw=keep_raw)
     try:
         declare(declared or {})
         keypoints, rows = detect_views(partial(detect_cached, cache), shard, transform, transform_cfg, method,
