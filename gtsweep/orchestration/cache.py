@@ -195,9 +195,10 @@ def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | No
 
     The detector's own output is cached too (under the pseudo-selector ``raw``), so every selector of one
     detection (survey Table 2) selects from one detector call; ``seconds`` is that call's time plus the selection's.
-    Only the selected lookup counts as a hit or miss. The raw output goes to disk only with ``cache.keep_raw``
-    (the runner sets it where a run selects from one detection more than one way): it is the bulk of the cache
-    (tens of thousands of keypoints against the 1000 selected; ~0.3 GB per synthetic image of survey Table 3).
+    Only the selected lookup counts as a hit or miss. The raw output goes to disk only when the cache's
+    ``keep_raw`` is set (the runner sets it where a run selects from one detection more than one way): it is the
+    bulk of the cache (tens of thousands of keypoints against the 1000 selected; ~0.3 GB per synthetic image of
+    survey Table 3).
     """
     hashed = image_hash(image, mask)
     key = detection_key(image, mask, detector, {"params": detector_params}, selector, {"params": selector_params},

@@ -247,10 +247,10 @@ def table_detectors(df: pd.DataFrame, views: Views | None = None, alpha: float =
         return None
     text = paper("table3_text.csv")
     ran = detection.groupby("detector")["selector"].agg(lambda s: dict.fromkeys(s))
-    best = detection[detection["selector"] == detection["detector"].map(lambda d: survey_selector(d, ran[d]))]
+    chosen = detection[detection["selector"] == detection["detector"].map(lambda d: survey_selector(d, ran[d]))]
     table = Table("table3_detectors", "", pd.DataFrame())
     out, entries = [], {}
-    for row in best.sort_values("repeatability", ascending=False).itertuples():
+    for row in chosen.sort_values("repeatability", ascending=False).itertuples():
         said = {r.metric: r.value for r in text[text["detector"] == paper_label(row.detector)].itertuples()}
         cells, shown = _detection_cells(df, row.detector, row.selector), shown_label(row.detector)
         entries[shown] = cells
