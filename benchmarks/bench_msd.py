@@ -8,11 +8,10 @@ identical (every column of every keypoint). Prints figures; no pass/fail.
 from __future__ import annotations
 
 import argparse
-import time
 
 import cv2
 import numpy as np
-from bench_pairings import survey_view
+from bench_pairings import cpu_seconds, survey_view
 
 from gtsweep.cli.overrides import compose_config
 from gtsweep.stages import keypoints as kp
@@ -23,12 +22,8 @@ TEXTURES = ("fine_asphalt", "carpet", "gravel", "tiles")
 
 def best(run, repeat: int):
     """The shortest CPU time of ``repeat`` calls of ``run`` and the last result."""
-    times, result = [], None
-    for _ in range(repeat):
-        start = time.thread_time()
-        result = run()
-        times.append(time.thread_time() - start)
-    return min(times), result
+    runs = [cpu_seconds(run) for _ in range(repeat)]
+    return min(seconds for _, seconds in runs), runs[-1][0]
 
 
 def main() -> None:

@@ -4,9 +4,9 @@ Self-Dissimilarities", ACCV 2014), as OpenCV's ``cv2.xfeatures2d.MSDDetector`` c
 OpenCV's ``opencv_contrib/modules/xfeatures2d/src/msd.cpp`` (a port of github.com/fedassa/msdDetector by Federico
 Tombari and Daniele De Gregorio; OpenCV is distributed under the Apache License 2.0) visits each pixel of each
 pyramid level and each of the (2 r_b + 1)² - 1 offsets of its search area with scalar code: on a 1288×964 view
-that is 3.4 s, most of the survey protocol's detection time. Here every offset is one pass over a strip of rows
-(the squared difference of the image and its shifted copy, summed over the patch by a box filter, the k smallest
-kept by a min/max insertion), so the work is array operations. The numbers are OpenCV's, bit for bit: the patch
+that is 3.4 s, most of the survey protocol's detection time. Here each pair of opposite offsets is one pass over a
+strip of rows (the squared difference of the image and its shifted copy, summed over the patch by a separable
+filter of ones, the k smallest kept by a min/max insertion), so the work is array operations. The numbers are OpenCV's, bit for bit: the patch
 sums are integers (exact in float32 below 2^24: at most (2 r_s + 1)² · 255² · k), the mean of the k smallest is
 the same float32 division, the pyramid is OpenCV's own ``resize(INTER_AREA)``, and the non-maximum suppression and
 the sub-pixel step replay msd.cpp's float and double arithmetic (``cv::solve``'s 2×2 Cramer rule in double);
@@ -219,8 +219,5 @@ class FastMSD:
         return np.concatenate(found) if found else kp.empty()
 
 
-def MSD_create(m_patch_radius=3, m_search_area_radius=5, m_nms_radius=5, m_nms_scale_radius=0,  # noqa: N802
-               m_th_saliency=250.0, m_kNN=4, m_scale_factor=1.25, m_n_scales=-1, m_compute_orientation=False):
-    """An MSD detector with ``cv2.xfeatures2d.MSDDetector_create``'s arguments and OpenCV's keypoints."""
-    return FastMSD(m_patch_radius, m_search_area_radius, m_nms_radius, m_nms_scale_radius, m_th_saliency,
-                   m_kNN, m_scale_factor, m_n_scales, m_compute_orientation)
+#: An MSD detector with ``cv2.xfeatures2d.MSDDetector_create``'s arguments and OpenCV's keypoints.
+MSD_create = FastMSD
