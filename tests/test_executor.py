@@ -7,6 +7,7 @@ import operator
 import os
 import weakref
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -14,6 +15,7 @@ from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable
 from gtsweep.evaluation.views import make_shard
 from gtsweep.orchestration import tasks
 from gtsweep.orchestration.executor import SerialExecutor, make_executor
+from gtsweep.orchestration.runner import submit
 from gtsweep.orchestration.shards import load_shards
 
 
@@ -96,6 +98,21 @@ class _Pair:
         self.id = self.texture = name
         self.reference = self.test = _Item(name, image)
         self.H = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+
+
+def test_the_driver_keeps_no_copy_of_a_shard_once_it_is_put():
+    """With Ray the object store holds the shards' images: the driver's own copies go as each is put."""
+    class Store:  # an executor whose put keeps only a token, as Ray's object store keeps the value elsewhere
+        def put(self, value):
+            return ("ref", len(value["items"]))
+
+    images = [np.zeros((8, 8), np.uint8) for _ in range(3)]
+    alive = [weakref.ref(image) for image in images]
+    shards = {"synthetic": [{"items": [{"image": image}]} for image in images]}
+    del images
+    assert submit(Store(), None, shards, [], seed=0, cache_dir=None) == 0
+    gc.collect()
+    assert shards == {"synthetic": [("ref", 1)] * 3} and [ref() for ref in alive] == [None] * 3
 
 
 class _Dataset:
