@@ -61,15 +61,18 @@ TUNE := $(BIN)/python -m gtsweep experiment=optimize experiment.tuned_root=conf 
 # The studies run in the order of the detector list (sorted); the slowest detectors go last, each in a command of its
 # own, so that a run cut short leaves the most studies finished (the same command continues it). MSER is tuned
 # with ANMS: the survey reduces to 1000 keypoints "using the best selection method" (section 4.2), which for MSER
-# is ANMS (section 4.1, "MSER to be the only detector that performs best with ANMS"). MSD last: 3.5 s per view.
+# is ANMS (section 4.1, "MSER to be the only detector that performs best with ANMS"). MSD last (slowest before its
+# port: 3.5 s per view with OpenCV's msd.cpp; ~0.9 s with gtsweep's port, which tuning now uses).
 tune: $(STAMP)
 	$(TUNE) 'detector=[agast,akaze,brisk,censure,fast,gftt,harris,harris_laplace,orb,sift,surf,xfeat,kaze]' \
 		experiment.n_trials=200 experiment.patience=20
 	$(TUNE) 'detector=[mser]' experiment.selector.name=anms experiment.n_trials=200 experiment.patience=20
 	$(TUNE) 'detector=[msd]' experiment.n_trials=200 experiment.patience=20
 
-# The long run: every survey table preset on the survey-size data set (dataset=survey, reduced counts: about an
-# hour), docs/REPRODUCTION.md. --size presets / full: the presets' counts / the survey's protocol (hours).
+# The long run: every survey table preset on the survey-size data set (dataset=survey), in rounds of growing counts
+# until each finding is decided (many hours; the same command resumes it), docs/REPRODUCTION.md. A fixed size:
+# python -m gtsweep.report.reproduce --size hour (about an hour), presets (the presets' counts) or full (the
+# survey's protocol).
 reproduce: $(STAMP)
 	$(BIN)/python -m gtsweep.report.reproduce --size decide
 
