@@ -26,6 +26,7 @@ from gtsweep.core.registry import (
 )
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages import scales
+from gtsweep.stages.latch import LATCH_create
 from gtsweep.stages.learned import ALIKED_VARIANTS
 
 _x = cv2.xfeatures2d
@@ -84,7 +85,9 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
     # The survey's BRIEF uses the keypoint orientation (it collapses on unoriented keypoints for absolute pairs).
     _descriptor("brief", "BRIEF", _x.BriefDescriptorExtractor_create, {"bytes": 32, "use_orientation": True},
                 norm=HAMMING),
-    _descriptor("latch", "LATCH", _x.LATCH_create,
+    # OpenCV's LATCH, given one reflected column and row beyond the image it otherwise reads past
+    # (gtsweep.stages.latch): the same keypoints and descriptors, deterministic at the border.
+    _descriptor("latch", "LATCH", LATCH_create,
                 {"bytes": 32, "rotationInvariance": True, "half_ssd_size": 3, "sigma": 2.0}, norm=HAMMING),
     _descriptor("surf", "SURF", lazy_factory("gtsweep.stages.surf", "SURF_create"),
                 {"hessianThreshold": 100.0, "nOctaves": 4, "nOctaveLayers": 3, **_NONLINEAR}, norm=L2),
