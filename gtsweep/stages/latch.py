@@ -67,7 +67,5 @@ class BorderSafeLATCH:
         return self.latch.defaultNorm()
 
 
-def LATCH_create(bytes: int = 32, rotationInvariance: bool = True, half_ssd_size: int = 3,  # noqa: A002, N802
-                 sigma: float = 2.0) -> BorderSafeLATCH:
-    """``cv2.xfeatures2d.LATCH_create``'s signature; see :class:`BorderSafeLATCH`."""
-    return BorderSafeLATCH(bytes, rotationInvariance, half_ssd_size, sigma)
+#: ``cv2.xfeatures2d.LATCH_create``'s name and signature (the registry's factory), as for MSD's port.
+LATCH_create = BorderSafeLATCH
