@@ -84,7 +84,7 @@ def _pair(data: Data, label, kind, margin, a, b, metric, sign=1, where_a=None, w
         if data.views else None
     if result is None:
         return f"{label}: {data.value(a, metric, where_a):.2f} vs {data.value(b, metric, where_b or where_a):.2f}"
-    return Claim(label, _oriented(result, sign), kind, margin, 1.0 if half is None else 0.5)
+    return Claim(label, _oriented(result, sign), kind, margin, 0.5 if half in (0, 1) else 1.0)
 
 
 def nms_beats_other_selectors(data: Data):

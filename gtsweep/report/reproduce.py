@@ -112,8 +112,10 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
     every finding's verdict with its test, margin and numbers, and every table with the entries tied with its
     best (each preset's newest run)."""
     assets = docs / "reproduction"
-    shutil.rmtree(assets, ignore_errors=True)
-    assets.mkdir(parents=True)
+    assets.mkdir(parents=True, exist_ok=True)
+    for old in assets.iterdir():  # the generated tables and plots; the state and references in folders stay
+        if old.is_file():
+            old.unlink()
     latest = _latest(results)
     scale = load_scale(latest[0]["output"] if latest else docs)  # the presets share one data set
     command = f"python -m gtsweep.report.reproduce --size {size}" + (f" --alpha {alpha:g}" if alpha != ALPHA else "")

@@ -54,7 +54,7 @@ def _until(text: str | None) -> float | None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gtsweep.reproduction", description=__doc__.splitlines()[0])
-    parser.add_argument("command", choices=["collect", "status"])
+    parser.add_argument("command", choices=["collect", "status", "verify"])
     parser.add_argument("--part", choices=sorted(PARTS), default="rebuild")
     parser.add_argument("--state", default=str(states.STATE_DIR), help="the state folder (committed)")
     parser.add_argument("--work", default=str(PROJECT_DIR / ".gtsweep_cache" / "reproduction"),
@@ -66,6 +66,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         wanted = plan()
         check_plan(states.read_plan(args.state), wanted)
+        if args.command == "verify":
+            from gtsweep.reproduction import looks, verify
+
+            print("\n".join(verify.report(verify.check(looks.replay(states.load(args.state), ALPHA)))))
+            return 0
         if args.command == "status":
             done = done_units(args.state)
             print(f"{args.part}: {sum(u.name in done for u in units)} of {len(units)} chunks in {args.state} "

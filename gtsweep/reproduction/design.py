@@ -104,3 +104,48 @@ def rebuild_units(records: Path = RECORDS) -> list[Unit]:
             units.append(Unit("rebuild", preset, start, stop, None if start == 0 else cells))
             start = stop
     return units
+
+
+#: The amendment's new data (A6, A7): per part, its preset and the windows of its chunks (numbers per texture).
+NEW_WINDOWS = {
+    "extension": ("table2_selectors", (16, 18, 20, 23)),
+    "round6": ("table3_detectors", (16, 28, 40, 52, 64, 76, 88, 100)),
+    "round6-pairings": ("table6_pairings", (16, 37, 58, 79, 100)),
+    "restated": ("table4_incremental", (25, 100)),
+}
+#: Finding 2's detectors, evaluated without selection in the extension (A6).
+DENSE = ("mser", "fast", "agast", "brisk")
+
+
+def _survey_selector(detector: str) -> str:
+    return "anms" if detector == "mser" else "nms"
+
+
+def new_cells(part: str, records: dict[str, dict], picks: dict[str, str | None]) -> tuple[str, ...]:
+    """The cells of a part of the new data (A7), by the state's records of the preset's cells (``{key: record}``),
+    given the restated findings' picks (:func:`gtsweep.reproduction.amended.picks_restated`)."""
+    def keys(match) -> tuple[str, ...]:
+        return tuple(sorted(k for k, r in records.items() if r["status"] == "ok" and match(r["methods"])))
+
+    if part == "extension":
+        return keys(lambda m: m["selector"] in ("nms", "anms", "bucketing") or m["detector"] in DENSE)
+    if part == "round6":
+        detectors = {"sift", "akaze", "surf", "censure", FROZEN["sift_ambiguous"], FROZEN["best_repeatability"],
+                     picks["median_repeatability"], picks["median_ambiguity"]}
+        return keys(lambda m: m["detector"] in detectors and m["selector"] == _survey_selector(m["detector"]))
+    if part == "round6-pairings":
+        wanted = {("sift", "sift"), tuple(FROZEN["sift_best_on_synthetic"].split("-"))}
+        return keys(lambda m: (m["detector"], m.get("descriptor")) in wanted)
+    wanted = {tuple(picks[k].split("-")) for k in ("censure_or_msd", "other_incremental")}
+    return keys(lambda m: (m["detector"], m.get("descriptor")) in wanted)
+
+
+def new_units(records: dict[str, dict[str, dict]], picks: dict[str, str | None]) -> list[Unit]:
+    """Every chunk of the amendment's new data; ``records``: per preset, the state's cell records."""
+    units = []
+    for part, (preset, bounds) in NEW_WINDOWS.items():
+        if preset not in records:
+            raise BadInput(f"the state holds no {preset} cells: rebuild it before the new data")
+        cells = new_cells(part, records[preset], picks)
+        units += [Unit(part, preset, a, b, cells) for a, b in zip(bounds, bounds[1:])]
+    return units

@@ -89,6 +89,12 @@ class State:
         found = {k: c.frame(self.textures(), limit) for k, c in sorted(self.presets.get(preset, {}).items())}
         return {k: v for k, v in found.items() if len(v)}
 
+    def reached(self, preset: str) -> int:
+        """The count per texture the preset's rows reach: one past the largest image or pair number of any cell."""
+        numbers = [int(r["image"].map(item_number).max()) for c in self.presets.get(preset, {}).values()
+                   for r in c.rows if len(r)]
+        return max(numbers, default=-1) + 1
+
     def covered(self, preset: str, key: str) -> set[str]:
         """The images or pairs a cell's rows cover."""
         cell = self.presets.get(preset, {}).get(key)
