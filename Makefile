@@ -69,12 +69,14 @@ tune: $(STAMP)
 	$(TUNE) 'detector=[mser]' experiment.selector.name=anms experiment.n_trials=200 experiment.patience=20
 	$(TUNE) 'detector=[msd]' experiment.n_trials=200 experiment.patience=20
 
-# The long run: every survey table preset on the survey-size data set (dataset=survey), in rounds of growing counts
-# until each finding is decided (many hours; the same command resumes it), docs/REPRODUCTION.md. A fixed size:
-# python -m gtsweep.report.reproduce --size hour (about an hour), presets (the presets' counts) or full (the
-# survey's protocol).
+# The reproduction (docs/REPRODUCTION.md): its state is committed in docs/reproduction/state/. With the versions that
+# state was computed with (its constraints.txt), compute what the amended design still needs, in chunks of at most
+# about 2 h each written to the state as they finish (nothing already recorded is computed again; the same command
+# resumes), then regenerate the document from the state alone. Finished, it computes nothing and takes minutes.
 reproduce: $(STAMP)
-	$(BIN)/python -m gtsweep.report.reproduce --size decide
+	$(BIN)/pip install --quiet -c docs/reproduction/state/constraints.txt -e '.[test,learned]'
+	$(BIN)/python -m gtsweep.reproduction collect
+	$(BIN)/python -m gtsweep.reproduction document
 
 clean:
 	rm -rf .gtsweep_cache outputs multirun

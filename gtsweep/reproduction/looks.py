@@ -71,7 +71,7 @@ PART = {"best_repeatability_final": "round6", "sift_ambiguous_final": "round6",
         "selection_hurts_dense_detectors": "extension"}
 
 
-def _data(state: State, preset: str, alpha: float, numbers: range | None = None) -> Data:
+def preset_data(state: State, preset: str, alpha: float, numbers: range | None = None) -> Data:
     summaries = state.summaries(preset)
     views = state.views(preset)
     if numbers is not None:  # only these images or pairs (the extension's original tests, which pick nothing)
@@ -102,7 +102,7 @@ def _look(state: State, hypothesis, level: float, per_texture: int, done: set[st
     if part not in done:
         return Look(Finding(hypothesis.text, PENDING, hypothesis.test, margin=hypothesis.margin), level,
                     per_texture, f"its new data ({part}) is not collected yet")
-    data = _data(state, hypothesis.preset, level, numbers)
+    data = preset_data(state, hypothesis.preset, level, numbers)
     finding = judge(hypothesis, data)
     if status is not None:  # the sequential record: the final look at t = 1 spends the rest of alpha
         status.finding, status.round, status.per_texture, status.fraction = finding, 6, FULL, 1.0

@@ -27,6 +27,7 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import PROJECT_DIR
 from gtsweep.orchestration.results import summarize
+from gtsweep.orchestration import task_costs
 from gtsweep.orchestration.task_costs import TIMINGS
 
 STATE_DIR = PROJECT_DIR / "docs" / "reproduction" / "state"
@@ -150,7 +151,7 @@ def load(folder: Path = STATE_DIR) -> State:
     for path in sorted((folder / "chunks").glob("*.json")):
         record = json.loads(path.read_text())
         rows = pd.read_parquet(path.with_suffix(".parquet"))
-        chunks.append({**record, "name": path.stem})
+        chunks.append({**record, "name": path.stem, "task_s": task_seconds(record, rows)})
         by_cell = dict(tuple(rows.groupby(CELL, sort=False))) if len(rows) else {}
         for key, meta in record["cells"].items():
             cell = presets.setdefault(record["preset"], {}).setdefault(key, Cell(key, meta))
@@ -160,6 +161,15 @@ def load(folder: Path = STATE_DIR) -> State:
             if key in by_cell:
                 cell.rows.append(by_cell[key].drop(columns=[CELL]))
     return State(plan, chunks, presets)
+
+
+def task_seconds(record: dict, rows: pd.DataFrame) -> float:
+    """The chunk's recorded task CPU-seconds (detection, description, matching, pose; :mod:`task_costs`)."""
+    if rows.empty:
+        return 0.0
+    methods = pd.DataFrame([record["cells"][k]["methods"] for k in rows[CELL]], index=rows.index)
+    frame = pd.concat([rows.drop(columns=[CELL]), methods.drop(columns=[c for c in methods if c in rows])], axis=1)
+    return float(sum(task_costs.work_seconds(frame.astype({c: "float64" for c in TIMINGS if c in frame})).values()))
 
 
 def _check_same(cell: Cell, meta: dict, path: Path) -> None:
