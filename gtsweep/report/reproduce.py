@@ -151,7 +151,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
         summaries[r["preset"]], views[r["preset"]] = load_summaries(r["output"]), load_views(r["output"])
         per_cell = cell_counts(summaries[r["preset"]], views[r["preset"]])
         per_cell.to_csv(assets / f"{r['preset']}__cell_counts.csv", index=False)
-        counted.append(f"| {r['preset']} | {_tally(per_cell)} |")
+        counted.append(f"| {r['preset']} | {tally(per_cell)} |")
         for table in build_tables(summaries[r["preset"]], views[r["preset"]], alpha):
             if table.name != r["preset"] and not table.name.startswith(f"{r['preset']}_"):  # one per variant
                 continue  # e.g. the Table 2 sweep also fills Table 3; its own preset shows it
@@ -159,7 +159,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
             tables += ["", table.markdown(note=True)]
             (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
             if table.ties is not None and table.ties.best:
-                ties.append(_ties_row(table))
+                ties.append(ties_row(table))
         for png in sorted(_report_dir(r, summaries[r["preset"]], views[r["preset"]], alpha).glob("*.png")):
             target = assets / f"{r['preset']}__{png.name}"
             shutil.copy(png, target)
@@ -209,7 +209,7 @@ def cell_counts(summaries: list[dict], views: dict) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["cell", "status", "images_or_pairs", "per_texture"])
 
 
-def _tally(per_cell: pd.DataFrame) -> str:
+def tally(per_cell: pd.DataFrame) -> str:
     known = per_cell.dropna(subset=["per_texture"])
     found = known.groupby("per_texture").size().sort_index(ascending=False)
     text = "; ".join(f"{int(n)}: {k} cells" for n, k in found.items())
@@ -228,7 +228,7 @@ def _report_dir(r: dict, summaries: list[dict], views: dict, alpha: float) -> Pa
     return out
 
 
-def _ties_row(table) -> str:
+def ties_row(table) -> str:
     t = table.ties
     untested = f"; {len(t.untested)} without per-view rows" if t.untested else ""
     return (f"| {table.name} | {t.best} ({t.metric} {t.best_value:.2f}) | {len(t.tied)} of {len(t.tests)}{untested} "

@@ -18,7 +18,7 @@ import numpy as np
 
 from gtsweep.evaluation.verdicts import AMONG, BEATS, WITHIN, Claim
 from gtsweep.report.findings import (AMBIGUITY_MARGIN, FINDINGS, REPEATABILITY_MARGIN, SUCCESS_MARGIN, SYNTHETIC,
-                                     _pair)
+                                     pair_claim)
 from gtsweep.report.pools import best, detection_cells, keeps_all, median_entry, pairings, table3
 from gtsweep.report.samples import against
 from gtsweep.reproduction.design import FROZEN
@@ -65,7 +65,7 @@ def best_repeatability_final(data):
     if len(named) < 3 or rival not in cells:
         return []
     test = old_half1_and_new(ROUNDS_SYNTHETIC)
-    return [_pair(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN, cells[x],
+    return [pair_claim(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN, cells[x],
                   cells[rival], "repeatability", half=test) for x in named]
 
 
@@ -73,7 +73,7 @@ def sift_ambiguous_final(data):
     cells, median = table3(data), FROZEN["sift_ambiguous"]
     if "sift" not in cells or median not in cells:
         return []
-    large = _pair(data, f"sift vs median detector {median} (frozen round-5 pick)", BEATS, AMBIGUITY_MARGIN,
+    large = pair_claim(data, f"sift vs median detector {median} (frozen round-5 pick)", BEATS, AMBIGUITY_MARGIN,
                   cells["sift"], cells[median], "ambiguity", half=old_half1_and_new(ROUNDS_SYNTHETIC))
     about = against(cells["sift"], "ambiguity", data.views, 1.5, confidence=1 - 2 * data.alpha)
     return [large, Claim("sift ambiguity - 1.5", about, WITHIN, AMBIGUITY_MARGIN)]
@@ -83,7 +83,7 @@ def sift_best_on_synthetic_final(data):
     entries, rival = pairings(data, SYNTHETIC), FROZEN["sift_best_on_synthetic"]
     if "sift-sift" not in entries or rival not in entries:
         return []
-    return [_pair(data, f"sift-sift vs {rival} (frozen round-5 pick)", AMONG, SUCCESS_MARGIN, entries["sift-sift"],
+    return [pair_claim(data, f"sift-sift vs {rival} (frozen round-5 pick)", AMONG, SUCCESS_MARGIN, entries["sift-sift"],
                   entries[rival], "pose_success", half=old_half1_and_new(ROUNDS_SYNTHETIC))]
 
 
@@ -96,7 +96,7 @@ def selectors_restated(data):
         mine, kind = ("anms", BEATS) if det == "mser" else ("nms", AMONG)
         for rival in sorted({"nms", "anms", "bucketing"} - {mine}):
             if mine in sel and rival in sel and not (keeps_all(sel[rival]) and keeps_all(sel[mine])):
-                parts.append(_pair(data, f"{det} {mine.upper()} vs {rival.upper()}", kind, REPEATABILITY_MARGIN,
+                parts.append(pair_claim(data, f"{det} {mine.upper()} vs {rival.upper()}", kind, REPEATABILITY_MARGIN,
                                    sel[mine], sel[rival], "repeatability", half=test))
     return parts
 
@@ -108,9 +108,9 @@ def best_repeatability_restated(data):
     if len(named) < 3 or rival not in cells:
         return []
     test = numbered(ROUNDS_SYNTHETIC)
-    best_part = [_pair(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN, cells[x],
+    best_part = [pair_claim(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN, cells[x],
                        cells[rival], "repeatability", half=test) for x in named]
-    span = [_pair(data, f"{a} vs {b} (span)", WITHIN, SPAN_MARGIN, cells[a], cells[b], "repeatability", half=test)
+    span = [pair_claim(data, f"{a} vs {b} (span)", WITHIN, SPAN_MARGIN, cells[a], cells[b], "repeatability", half=test)
             for i, a in enumerate(named) for b in named[i + 1:]]
     return best_part + span
 
@@ -128,7 +128,7 @@ def low_ambiguity_restated(data):
         for x in named:
             test = numbered(ROUNDS_SYNTHETIC, skip_texture=NON_WOOD if x == "akaze" else None)
             where = " (non-wood)" if x == "akaze" else ""
-            parts.append(_pair(data, f"{x}{where} {metric} vs median other {median} (on half 0)", BEATS, margin,
+            parts.append(pair_claim(data, f"{x}{where} {metric} vs median other {median} (on half 0)", BEATS, margin,
                                cells[x], cells[median], metric, sign=sign, half=test))
     return parts
 
@@ -143,7 +143,7 @@ def censure_or_msd_best_restated(data):
     rival = best(data, {k: v for k, v in entries.items() if k not in mine}, "pose_success", half=pick)
     if top is None or rival is None:
         return []
-    return [_pair(data, f"{top} vs {rival} (both best on half 0)", AMONG, SUCCESS_MARGIN, mine[top],
+    return [pair_claim(data, f"{top} vs {rival} (both best on half 0)", AMONG, SUCCESS_MARGIN, mine[top],
                   entries[rival], "pose_success", half=numbered(ROUNDS_INCREMENTAL))]
 
 

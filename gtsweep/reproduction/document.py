@@ -20,7 +20,7 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation.verdicts import UNDECIDED, images_to_decide
 from gtsweep.orchestration.preset_runs import PRESETS
-from gtsweep.report.reproduce import _tally, _ties_row, cell_counts, tuned_line, tuning_table
+from gtsweep.report.reproduce import tally, ties_row, cell_counts, tuned_line, tuning_table
 from gtsweep.report.scale import annotate, load_scale
 from gtsweep.report.tables import build_tables
 from gtsweep.reproduction import looks as looking
@@ -147,7 +147,7 @@ def _tables(state: State, assets: Path, alpha: float) -> list[str]:
             summaries, views = state.summaries(preset), state.views(preset)
             per_cell = cell_counts(summaries, views)
             per_cell.to_csv(assets / f"{preset}__cell_counts.csv", index=False)
-            counted.append(f"| {preset} | {_tally(per_cell)} |")
+            counted.append(f"| {preset} | {tally(per_cell)} |")
             for table in build_tables(summaries, views, alpha):
                 if table.name != preset and not table.name.startswith(f"{preset}_"):
                     continue
@@ -155,7 +155,7 @@ def _tables(state: State, assets: Path, alpha: float) -> list[str]:
                 lines += ["", table.markdown(note=True)]
                 (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
                 if table.ties is not None and table.ties.best:
-                    ties.append(_ties_row(table))
+                    ties.append(ties_row(table))
     finally:
         shutil.rmtree(work, ignore_errors=True)
     order = {p: i for i, p in enumerate(PRESETS)}
