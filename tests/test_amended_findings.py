@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from finding_fakes import Fakes, level
 
-from gtsweep.report.findings import judge
+from gtsweep.reproduction.findings import judge
 from gtsweep.report.pools import Data
 from gtsweep.reproduction import amended
 

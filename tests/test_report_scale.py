@@ -4,7 +4,7 @@ import pytest
 import yaml
 from report_fakes import fake_cell
 
-from gtsweep.report.findings import check_findings, survey_variant
+from gtsweep.reproduction.findings import check_findings, survey_variant
 from gtsweep.experiments.report_command import main
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import Scale, load_scale, scale_from_config
@@ -88,7 +88,7 @@ def test_report_states_the_scale_under_the_tables_and_in_the_footer(tmp_path, ca
 
 
 def test_reproduction_document_carries_the_scale_and_the_variant(tmp_path):
-    from gtsweep.report import reproduce
+    from gtsweep.reproduction import command as reproduce
 
     output = tmp_path / "work" / "table4_incremental"
     output.mkdir(parents=True)

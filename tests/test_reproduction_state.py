@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.orchestration import preset_runs
+from gtsweep.reproduction import rounds as preset_runs
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import load_summaries
 from gtsweep.reproduction import state as states

@@ -19,7 +19,7 @@ import yaml
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.report.reproduce import tuned_digest, tuning_fingerprint
+from gtsweep.reproduction.command import tuned_digest, tuning_fingerprint
 from gtsweep.report.tables import ALPHA
 from gtsweep.reproduction import state as states
 from gtsweep.reproduction.collect import collect, done_units

@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from gtsweep.evaluation.verdicts import AMONG, BEATS, WITHIN, Claim
-from gtsweep.report.findings import (AMBIGUITY_MARGIN, FINDINGS, REPEATABILITY_MARGIN, SUCCESS_MARGIN, SYNTHETIC,
+from gtsweep.reproduction.findings import (AMBIGUITY_MARGIN, FINDINGS, REPEATABILITY_MARGIN, SUCCESS_MARGIN, SYNTHETIC,
                                      pair_claim)
 from gtsweep.report.pools import best, detection_cells, keeps_all, median_entry, pairings, table3
 from gtsweep.report.samples import against

@@ -19,7 +19,7 @@ import pandas as pd
 
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import PROJECT_DIR
-from gtsweep.orchestration import preset_runs
+from gtsweep.reproduction import rounds as preset_runs
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.reproduction import state as states
 from gtsweep.reproduction.design import Unit

@@ -19,8 +19,8 @@ import yaml
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation.verdicts import UNDECIDED, images_to_decide
-from gtsweep.orchestration.preset_runs import PRESETS
-from gtsweep.report.reproduce import tally, ties_row, cell_counts, tuned_line, tuning_table
+from gtsweep.reproduction.rounds import PRESETS
+from gtsweep.reproduction.command import tally, ties_row, cell_counts, tuned_line, tuning_table
 from gtsweep.report.scale import annotate, load_scale
 from gtsweep.report.tables import build_tables
 from gtsweep.reproduction import looks as looking

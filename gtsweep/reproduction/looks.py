@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gtsweep.orchestration.preset_runs import PRESETS, ROUNDS
-from gtsweep.report.findings import Finding, check, judge, survey_variant
+from gtsweep.reproduction.rounds import PRESETS, ROUNDS
+from gtsweep.reproduction.findings import Finding, check, judge, survey_variant
 from gtsweep.report.pools import Data
-from gtsweep.report.sequential import Sequential, Status
+from gtsweep.reproduction.sequential import Sequential, Status
 from gtsweep.report.tables import frame
 from gtsweep.reproduction import amended
 from gtsweep.reproduction.design import ROUND_COUNTS, SPLIT

@@ -27,8 +27,8 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import PROJECT_DIR
 from gtsweep.orchestration.results import summarize
-from gtsweep.orchestration import task_costs
-from gtsweep.orchestration.task_costs import TIMINGS
+from gtsweep.reproduction import task_costs
+from gtsweep.reproduction.task_costs import TIMINGS
 
 STATE_DIR = PROJECT_DIR / "docs" / "reproduction" / "state"
 CELL = "cell"  # the rows' column naming their cell

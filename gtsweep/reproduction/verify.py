@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gtsweep.core.paths import PROJECT_DIR
-from gtsweep.report.sequential import Sequential
+from gtsweep.reproduction.sequential import Sequential
 
 REFERENCE = PROJECT_DIR / "docs" / "reproduction" / "reference" / "round5_findings.md"
 

@@ -21,9 +21,9 @@ import pandas as pd
 
 from gtsweep.evaluation.statistics import spent_alpha
 from gtsweep.evaluation.verdicts import DECIDED
-from gtsweep.orchestration.preset_runs import counts, fraction
+from gtsweep.reproduction.rounds import counts, fraction
 from gtsweep.orchestration.results import METHOD_COLUMNS
-from gtsweep.report.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
+from gtsweep.reproduction.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries
 
@@ -57,7 +57,7 @@ class Status:
 
 class Sequential:
     """The state of every finding across rounds; :meth:`update` is the ``needed`` callback of
-    :func:`gtsweep.orchestration.preset_runs.run_rounds`."""
+    :func:`gtsweep.reproduction.rounds.run_rounds`."""
 
     def __init__(self, alpha: float, findings: list[Hypothesis] = FINDINGS, information=fraction):
         self.alpha, self.information = alpha, information  # information(preset, counts): fraction t in (0, 1]
