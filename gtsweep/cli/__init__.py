@@ -12,22 +12,14 @@ import sys
 
 from gtsweep.cli import completion, lifecycle
 from gtsweep.cli.overrides import fail, place, prepare, resume_args
-from gtsweep.cli.search import parse
+from gtsweep.cli.search import parse, search_path
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-from gtsweep.core.searchpath import ignore_missing_dir, register_sources, stray_tuned_files
+from gtsweep.core.configguard import check_config_files
+from gtsweep.core.searchpath import ignore_missing_dir, register_sources
 
 #: Flags that only print (help, config): no output directory needed.
 PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")
-
-
-def refuse_stray_tuned_files() -> None:
-    """A YAML file in ``./tuned`` that is not a tuned method file (issue 28's planted preset): one line, exit 2."""
-    stray = stray_tuned_files(DEFAULT_TUNED_ROOT)
-    if stray:
-        raise GtsweepError(f"{DEFAULT_TUNED_ROOT}/{stray[0]} is not a tuned method file: ./{DEFAULT_TUNED_ROOT} holds "
-                           f"only <group>/tuned/<name>.yaml (written by experiment=optimize) and gtsweep reads "
-                           f"nothing else from it; move presets and methods to a --config-dir of yours")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -37,7 +29,7 @@ def main(argv: list[str] | None = None) -> None:
     invocation = parse(args)
     if not invocation.passthrough:
         try:
-            refuse_stray_tuned_files()
+            check_config_files(search_path(args))  # ./tuned and --config-dir hold data, never code
             args = prepare(args)
             args = place(args, resume_args(args, invocation.multirun))
             if not any(a in PRINT_ONLY for a in args):

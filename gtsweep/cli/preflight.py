@@ -25,6 +25,7 @@ from gtsweep.cli.search import (
     with_searchpath,
 )
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, nearest
+from gtsweep.core.factories import check_composed
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
 
@@ -145,6 +146,7 @@ def check(args: list[str]) -> None:
                 found = declared_param(override, args)
                 if found:
                     check_declared(cfg, *found, args)
+            check_composed(cfg, overrides)
             check_settings(cfg)
 
 

@@ -17,6 +17,7 @@ from importlib import resources
 
 import yaml
 
+from gtsweep.core.configguard import load_yaml
 from gtsweep.core.errors import BadInput
 from gtsweep.core.searchpath import METHOD_GROUPS, Configs
 
@@ -163,16 +164,7 @@ def check_yaml(argv) -> None:
             continue
         for folder, _, names in os.walk(root):
             for name in sorted(n for n in names if n.endswith(".yaml")):
-                path = os.path.join(folder, name)
-                try:
-                    with open(path, encoding="utf-8") as f:
-                        yaml.safe_load(f)
-                except yaml.MarkedYAMLError as e:
-                    mark = e.problem_mark or e.context_mark
-                    raise BadInput(f"malformed YAML in {path}:{mark.line + 1 if mark else '?'}: "
-                                   f"{e.problem or e.context}") from None
-                except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-                    raise BadInput(f"cannot read the config {path}: {e}") from None
+                load_yaml(os.path.join(folder, name))
 
 
 def loaded_files(overrides) -> list[tuple[str, str]]:
@@ -207,6 +199,6 @@ def keyed_methods(cfg, found: Configs, overrides) -> None:
         if not raw or set(raw) == {name}:
             continue
         with open_dict(cfg[group]):
-            for key in raw:
-                cfg[group].pop(key, None)
+            for key in set(raw) & set(cfg[group].keys()):  # deleted unread: reading resolves interpolations
+                del cfg[group][key]
             cfg[group][name] = OmegaConf.merge(raw, cfg[group].get(name) or {})

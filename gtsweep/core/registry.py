@@ -9,7 +9,7 @@ parameters pass unchanged; a script's partial ones are merged onto the defaults,
 onto a model's ``default_conf``): an unknown parameter or a value of the wrong type is a one-line
 :class:`~gtsweep.core.errors.BadInput`, never a silent extra keyword. A :class:`Registry` holds one family, with
 one lookup (:meth:`Registry.get`) that lists the valid names when a name is unknown. A method can also be declared
-in YAML alone (:meth:`Registry.declare`): a ``factory`` (dotted path), capabilities, and ``params`` as defaults.
+in YAML alone (:meth:`Registry.declare`): a ``factory`` (a constructor's exact name), capabilities, and ``params`` as defaults.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, Iterable, Iterator, Mapping, TypeVar
 
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
-from gtsweep.core.plugins import check_factory
+from gtsweep.core import factories
 
 #: OpenCV's prefix of a reason: ``OpenCV(5.0.0) /path/to/file.cpp:291: error: ``.
 _OPENCV_WHERE = re.compile(r"^OpenCV\([^)]*\)\s+\S+:\d+:\s+error:\s*")
@@ -125,31 +125,8 @@ def lazy_factory(module: str, attribute: str) -> Callable[..., Any]:
     def create(**params):
         return getattr(importlib.import_module(module), attribute)(**params)
 
-    create.__qualname__ = f"{module}.{attribute}"
+    create.__qualname__ = create.constructor_name = f"{module}.{attribute}"
     return create
-
-
-def import_dotted(path, where: str):
-    """The object a dotted path names (``cv2.xfeatures2d.StarDetector_create``); a one-line BadInput otherwise. Only
-    a path inside the allowed modules (:mod:`gtsweep.core.plugins`) is imported: anything else is refused first."""
-    if not isinstance(path, str) or not path.strip():
-        raise BadInput(f"{where}: factory must be a dotted path such as cv2.ORB_create, got {path!r}")
-    check_factory(path.strip(), where)
-    parts = path.strip().split(".")
-    for split in range(len(parts) - 1, 0, -1):  # the longest importable module, then attributes
-        try:
-            found = importlib.import_module(".".join(parts[:split]))
-        except ImportError:
-            continue
-        try:
-            for attribute in parts[split:]:
-                found = getattr(found, attribute)
-        except AttributeError:
-            raise BadInput(f"{where}: factory '{path}': {'.'.join(parts[:split])} has no '{attribute}'") from None
-        if not callable(found):
-            raise BadInput(f"{where}: factory '{path}' is not callable")
-        return found
-    raise BadInput(f"{where}: factory '{path}': no module '{parts[0]}' can be imported")
 
 
 M = TypeVar("M", bound=Method)
@@ -193,6 +170,7 @@ class Registry(Generic[M]):
         if method.name in self._methods:
             raise ValueError(f"{self.family} '{method.name}' is registered twice")
         self._methods[method.name] = method
+        factories.note_built_in(getattr(method, "create", None))
         return method
 
     def unregister(self, name: str) -> None:
@@ -223,7 +201,7 @@ class Registry(Generic[M]):
             return self._methods[name]
         if self.make is None:
             raise BadInput(f"{where}: {self.family}s cannot be declared in YAML")
-        factory = import_dotted(node.get("factory"), where)
+        factory = factories.resolve(node.get("factory"), where)
         fields = _capabilities(self.spec)
         capabilities = {k: tuple(v) if isinstance(v, list) else v for k, v in node.items() if k not in CONFIG_KEYS}
         for key, value in capabilities.items():
