@@ -25,6 +25,7 @@ from gtsweep.cli.search import (
     with_searchpath,
 )
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, nearest
+from gtsweep.core.registry import require_available
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
 
@@ -141,6 +142,7 @@ def check(args: list[str]) -> None:
     with composer(args) as compose:
         for job in jobs(overrides, invocation.multirun):
             cfg = compose(job)
+            require_available(*(REGISTRIES[g][n] for g in GRID_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
             for override in job:
                 found = declared_param(override, args)
                 if found:
