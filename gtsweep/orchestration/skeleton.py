@@ -19,11 +19,12 @@ import pandas as pd
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.cache import cache_state
 from gtsweep.orchestration.cluster import check_address, cluster_record
 from gtsweep.orchestration.executor import backend
-from gtsweep.orchestration.grid import Cell, Grid, build_grid
+from gtsweep.orchestration.grid import Cell, Grid, build_grid, matcher_na_line
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
 from gtsweep.orchestration.runner import RunStats, plan, run
@@ -94,6 +95,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     grid = work.build_grid(cfg)
     runner_cfg = plain(cfg.get("runner")) or {}
     log.info("grid: %d cells (%s experiment)", len(grid.cells), grid.experiment["name"])
+    say_not_applicable(grid.cells)
     if backend(runner_cfg) == "ray":
         check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
     if on_checked is not None:
@@ -179,6 +181,18 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     outcome.table = store.write_table(ordered)
     write_run_record(outcome, data, reuse)
     return outcome
+
+
+def say_not_applicable(cells) -> None:
+    """Before any work: the cells a matcher cannot run, in one line; a grid none of whose cells can run is a
+    one-line BadInput (nothing would be computed)."""
+    note = matcher_na_line(cells)
+    if cells and all(cell.na_reason for cell in cells):
+        reasons = note or "; ".join(dict.fromkeys(cell.na_reason for cell in cells))
+        raise BadInput(f"none of the grid's {len(cells)} cell(s) can run: {reasons}")
+    if note:
+        log.info("%s", note)
+        print(f"gtsweep: note: {note}", file=sys.stderr)
 
 
 @dataclass(frozen=True)
