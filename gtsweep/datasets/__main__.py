@@ -98,6 +98,8 @@ def describe(cfg) -> int:
     try:
         dataset = load_dataset(cfg.dataset)
         print(format_statistics(dataset.name, pair_statistics(dataset, per_texture=len(dataset.textures) > 1)))
+        for kind, why in dataset.empty_kinds.items():
+            print(f"no {kind} pairs: {why}")
         law = cfg.dataset.get("absolute") or {}
         if cfg.dataset.get("loader") == "synthetic" and law.get("rotation_law") == "revisit":
             print(revisit_line(law))

@@ -109,6 +109,8 @@ class Dataset:
     skipped: list[str] = field(default_factory=list)
     excluded: list[str] = field(default_factory=list)
     no_pairs_reason: str = ""
+    #: Why a pair kind has no pairs, and which setting to change (:func:`gtsweep.datasets.pairing.no_pairs_line`).
+    empty_kinds: dict[str, str] = field(default_factory=dict)
 
     def images(self, split: str, textures: Iterable[str] | None = None, limit: int | None = None) -> list[Sample]:
         """Images of ``split`` ("optimisation", "synthetic", or an extra split such as "test")."""
