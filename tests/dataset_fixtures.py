@@ -116,8 +116,8 @@ def own_path(per_texture: int = 12) -> list[tuple[float, float, float]]:
     """(x, y, theta) of the image's pixel (0, 0), theta in degrees: a path of ``per_texture // 2`` views along x,
     then revisits of the same stretch at another heading (the CSV's convention, ``similarity_pose``)."""
     half = per_texture // 2
-    path = [(300.0 + 60 * i, 300.0 + 4 * i, 10.0 + 2 * i) for i in range(half)]
-    back = [(600.0 - 60 * i, 520.0 + 4 * i, 100.0 + 3 * i) for i in range(per_texture - half)]
+    path = [(300.0 + 60 * i, 300.0 + 4 * i, 30.0 + 5 * i) for i in range(half)]
+    back = [(600.0 - 60 * i, 520.0 + 4 * i, 120.0 + 5 * i) for i in range(per_texture - half)]
     return path + back
 
 
@@ -127,13 +127,18 @@ def own_csv(root: Path, per_texture: int = 12, written=lambda x, y, theta: (x, y
     convention than the images': e.g. theta negated)."""
     from gtsweep.datasets.floors import make_floor
 
-    rows = ["image,x,y,theta"]
     for t, (texture, kind) in enumerate(sorted(OWN_FLOORS.items())):
         ground = make_floor(kind, np.random.default_rng(t), (1000, 1000), 6.25)
         for i, (x, y, theta) in enumerate(own_path(per_texture)):
-            name = f"{texture}/{i:03d}.png"
             cv2.imwrite(str(_mkdir(root / texture) / f"{i:03d}.png"),
                         render_view(ground, similarity_pose(x, y, theta), OWN_VIEW))
-            rows.append(f"{name}," + ",".join(f"{v:.6g}" for v in written(x, y, theta)))
-    (root / "poses.csv").write_text("\n".join(rows) + "\n")
-    return root / "poses.csv"
+    return own_csv_rows(root, per_texture, written)
+
+
+def own_csv_rows(root: Path, per_texture: int = 12, written=lambda x, y, theta: (x, y, theta),
+                 name: str = "poses.csv") -> Path:
+    """The CSV (``name``) of :func:`own_csv` alone, beside its images (written before)."""
+    rows = ["image,x,y,theta"] + [f"{texture}/{i:03d}.png," + ",".join(f"{v:.6g}" for v in written(*values))
+                                  for texture in sorted(OWN_FLOORS) for i, values in enumerate(own_path(per_texture))]
+    (root / name).write_text("\n".join(rows) + "\n")
+    return root / name

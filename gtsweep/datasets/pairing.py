@@ -31,6 +31,7 @@ POSED_DEFAULTS = {
     "incremental_min_overlap": 0.01,
     "absolute_min_overlap": 0.1,
     "absolute_min_gap": 50,
+    "pose_check": True,  # the sweep checks the poses against the images first (gtsweep.datasets.posecheck)
 }
 
 

@@ -221,7 +221,20 @@ def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
         if not dataset.pairs(kind):  # a data set too small for the pair rules: one line before any work
             why = dataset.empty_kinds.get(kind, f"dataset.n_{kind}?")
             raise BadInput(f"data set '{dataset.name}' has no {kind} pairs: {why}")
+    if cfg["dataset"].get("pose_check") and dataset.pairs("incremental"):
+        check_the_poses(dataset)
     return PairData(dataset, dataset.fingerprint())
+
+
+def check_the_poses(dataset) -> None:
+    """Before any work: poses that disagree with the images stop the sweep in one line (which convention would
+    fit); poses that agree are said in the log."""
+    from gtsweep.datasets.posecheck import check_poses
+
+    found = check_poses(dataset)
+    log.info("%s", found.line())
+    if not found.consistent:
+        raise BadInput(f"{found.line()}; or dataset.pose_check=false to run anyway")
 
 
 def _evaluate_pairs(grid: Grid, data: PairData, cells: list, runner_cfg: dict, seed: int, cache_dir, finish,
