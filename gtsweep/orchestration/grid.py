@@ -284,6 +284,21 @@ def _matcher_na(grid: Grid, matcher: str, descriptor: str) -> str | None:
     return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm, descriptor)
 
 
+def matcher_na_line(cells) -> str | None:
+    """One line for the ``cells`` that are NA because their matcher cannot match their descriptor (known from the
+    grid alone: written NA, nothing computed for them), by matcher; None when there is none."""
+    by_matcher: dict[str, dict] = {}
+    for cell in cells:
+        matcher, descriptor = getattr(cell, "matcher", None), getattr(cell, "descriptor", None)
+        if cell.na_reason and matcher and descriptor and applicability(cell.detector, descriptor) is None:
+            found = by_matcher.setdefault(matcher, {"descriptors": {}, "cells": 0})
+            found["descriptors"].setdefault(descriptor, cell.na_reason.removesuffix(f", not {descriptor}"))
+            found["cells"] += 1
+    return "; ".join(f"matcher {matcher} cannot match descriptor {', '.join(found['descriptors'])} "
+                     f"({next(iter(found['descriptors'].values()))}): {found['cells']} cell(s) NA, not computed"
+                     for matcher, found in by_matcher.items()) or None
+
+
 def pairings_of(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:
     wanted = plain(cfg.get("pairings"))
     if wanted is None:
