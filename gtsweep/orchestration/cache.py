@@ -35,14 +35,13 @@ RAW = "raw"
 @lru_cache(maxsize=1)
 def library_versions() -> dict:
     """Versions that change detection results, and which SURF runs (OpenCV's nonfree one or gtsweep's port)."""
-    from gtsweep.stages.surf import opencv_surf_available
+    from gtsweep.stages.surf import implementation_name
 
     try:
         own = metadata.version("gtsweep")
     except metadata.PackageNotFoundError:
         own = "source"
-    surf = "opencv" if opencv_surf_available() else "gtsweep-numpy"
-    return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own, "surf": surf}
+    return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own, "surf": implementation_name()}
 
 
 def image_hash(image: np.ndarray, mask: np.ndarray | None):
