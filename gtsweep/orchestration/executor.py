@@ -89,9 +89,10 @@ class SerialExecutor:
     def put(self, value):
         return value
 
-    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1):
+    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1, num_gpus: float = 0.0):
         """Queue ``function(*args)``; its handle, or a tuple of ``num_returns`` handles. With a ``tag``, the
-        result (the last return value when there are several) comes out of :meth:`results` as ``(tag, result)``."""
+        result (the last return value when there are several) comes out of :meth:`results` as ``(tag, result)``.
+        ``num_gpus`` is Ray's resource request; here every task runs in this process."""
         task = _Task(function, args, num_returns, tag)
         self.queue.append(task)
         return Handle(task, None) if num_returns == 1 else tuple(Handle(task, i) for i in range(num_returns))
@@ -140,18 +141,24 @@ class RayExecutor:
 
         return ray.put(value)
 
-    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1):
-        """As :meth:`SerialExecutor.submit`; returns ObjectRefs (Ray resolves them when passed as arguments)."""
+    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1, num_gpus: float = 0.0):
+        """As :meth:`SerialExecutor.submit`; returns ObjectRefs (Ray resolves them when passed as arguments).
+        ``num_gpus`` (fractional): the GPU share the task needs, so Ray runs it on a node with a GPU."""
         import ray
 
-        key = (function, num_returns)
+        key = (function, num_returns, float(num_gpus))
         if key not in self.remotes:
-            self.remotes[key] = ray.remote(num_cpus=1, num_returns=num_returns, max_retries=self.retries)(
+            self.remotes[key] = ray.remote(**self.resources(num_returns, num_gpus))(
                 with_opencv_threads(function, self.threads))
         refs = self.remotes[key].remote(*args)
         if tag is not None:
             self.pending[refs[-1] if num_returns > 1 else refs] = tag
         return refs
+
+    def resources(self, num_returns: int, num_gpus: float) -> dict:
+        """``ray.remote``'s options for a task: one CPU, and ``num_gpus`` of a GPU where it asks for one."""
+        options = {"num_cpus": 1, "num_returns": num_returns, "max_retries": self.retries}
+        return {**options, "num_gpus": float(num_gpus)} if num_gpus else options
 
     def results(self, batch: int = 64) -> Iterator[tuple[Any, Any]]:
         """``(tag, result)`` as tagged tasks finish, collected ``batch`` at a time (one ``ray.wait`` per result
