@@ -14,7 +14,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gtsweep"
 LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "reproduction", "optimize",
-          "experiments", "cli"]
+          "experiments", "cli", "install"]  # install: the learned methods' installer, an entry point
 SCIENCE = {"core", "stages", "evaluation", "datasets"}
 MAX_LINES = 400
 

@@ -34,52 +34,14 @@ from gtsweep.report.scale import annotate, load_scale
 from gtsweep.reproduction.sequential import Sequential
 from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
 from gtsweep.report.tuning import tuning_table
+from gtsweep.reproduction.tuned import TUNED, tuned_digest, tuned_line, tuning_fingerprint
+from gtsweep.reproduction.document import cell_counts, tally, ties_row
 
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])
-TUNED = CONF_DIR / "detector" / "tuned"
 INTERIM = ("**Interim document: this reproduction is not finished.** It shows the rounds finished so far "
            "(`--document-only` on an unfinished run); the same `make reproduce` resumes it. Each verdict is its "
            "finding's last look; a finding marked *still open* may be decided by a later round.")
-#: ``make tune``'s data set: dataset=survey with its optimisation views only.
-TUNING_DATA = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0}
-
-
-def tuning_fingerprint() -> str:
-    """The fingerprint of the data set ``make tune`` tunes on (dataset=survey, optimisation views only)."""
-    import yaml
-
-    from gtsweep.datasets import load_dataset
-
-    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
-    return load_dataset({**options, **TUNING_DATA}).fingerprint()
-
-
-def tuned_fingerprints(directory: Path = TUNED) -> dict[str, str]:
-    """Each tuned detector file's data set fingerprint, from its header ("Data set fingerprint X.")."""
-    found = {}
-    for path in sorted(Path(directory).glob("*.yaml")):
-        match = re.search(r"Data set fingerprint ([0-9a-f]+)", path.read_text())
-        found[path.stem] = match.group(1) if match else "none"
-    return found
-
-
-def tuned_line(expected: str | None, directory: Path = TUNED) -> str:
-    """What the document states about the detectors' tuned parameters: on which data set they were tuned."""
-    found = tuned_fingerprints(directory)
-    if expected is None:
-        return ""
-    stale = {k: v for k, v in found.items() if v != expected}
-    if not stale:
-        return (f"Detector parameters: all {len(found)} tuned files were tuned on this data set's optimisation "
-                f"views (fingerprint {expected}).")
-    by = {}
-    for name, fingerprint in stale.items():
-        by.setdefault(fingerprint, []).append(name)
-    which = "; ".join(f"{', '.join(names)} on {fp}" for fp, names in by.items())
-    return (f"**Detector parameters not tuned on this data set**: {len(stale)} of {len(found)} tuned files carry "
-            f"another data set's fingerprint ({which}); `make tune` on dataset=survey's optimisation views "
-            f"(fingerprint {expected}) re-tunes them.")
 
 
 def _latest(results: list[dict]) -> list[dict]:
@@ -197,26 +159,6 @@ def _items(r: dict) -> str:
     return f" {r['items_evaluated']} ({r['items_reused']}) |" if r.get("items_evaluated") is not None else " - |"
 
 
-def cell_counts(summaries: list[dict], views: dict) -> pd.DataFrame:
-    """Per cell: its key, status, images or pairs, and images or pairs per texture (from its per-view rows)."""
-    rows = []
-    for s in summaries:
-        cell = views.get(s.get("key"))
-        textures = cell["texture"].nunique() if cell is not None and len(cell) else 0
-        n = int(s.get("n_images") or 0)
-        rows.append({"cell": s.get("key"), "status": s.get("status"), "images_or_pairs": n,
-                     "per_texture": round(n / textures) if textures else None})
-    return pd.DataFrame(rows, columns=["cell", "status", "images_or_pairs", "per_texture"])
-
-
-def tally(per_cell: pd.DataFrame) -> str:
-    known = per_cell.dropna(subset=["per_texture"])
-    found = known.groupby("per_texture").size().sort_index(ascending=False)
-    text = "; ".join(f"{int(n)}: {k} cells" for n, k in found.items())
-    rest = len(per_cell) - len(known)
-    return text + (f"; {rest} cells without rows (not applicable or failed)" if rest else "")
-
-
 def _report_dir(r: dict, summaries: list[dict], views: dict, alpha: float) -> Path:
     """The plots of a run; of every cell when the round ran only some of them (rebuilt from all its cells)."""
     if r.get("extra_cells") is None or len(summaries) <= r["cells"]:
@@ -226,13 +168,6 @@ def _report_dir(r: dict, summaries: list[dict], views: dict, alpha: float) -> Pa
     out = Path(r["output"]) / "report_every_cell"
     write_report(summaries, out, plots=True, views=views, alpha=alpha, scale=load_scale(r["output"]))
     return out
-
-
-def ties_row(table) -> str:
-    t = table.ties
-    untested = f"; {len(t.untested)} without per-view rows" if t.untested else ""
-    return (f"| {table.name} | {t.best} ({t.metric} {t.best_value:.2f}) | {len(t.tied)} of {len(t.tests)}{untested} "
-            f"| {', '.join(t.tied) or '-'} |")
 
 
 def findings_section(findings: list, variant: str, alpha: float, sequential: Sequential | None = None,
@@ -283,14 +218,6 @@ def _more(finding) -> str:
     return f" (~{math.ceil(need)} images or pairs would decide it at the observed effect, now {finding.n})"
 
 
-def tuned_digest(directory: Path = TUNED) -> str:
-    """A digest of the tuned detector files: a reproduction resumed after re-tuning would mix parameters."""
-    digest = hashlib.sha256()
-    for path in sorted(Path(directory).glob("*.yaml")):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
 def _resumed(results: list[dict]) -> str:
     """How often the reproduction was interrupted and resumed (its wall time includes the cut attempts)."""
     cut = sum(r.get("attempts", 1) - 1 for r in results)
@@ -332,6 +259,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 0 < args.alpha < 1:
         parser.error(f"--alpha must be in (0, 1), not {args.alpha}")
+    if args.size == "decide" and not args.document_only:  # the sequential run lives in its committed state now
+        from gtsweep.reproduction.cli import main as state_run
+
+        return state_run(["collect"]) or state_run(["document"])
     work = Path(args.work).resolve()
     record = work / "measurements.json"
     if args.document_only:

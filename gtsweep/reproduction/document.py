@@ -20,7 +20,8 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation.verdicts import UNDECIDED, images_to_decide
 from gtsweep.reproduction.rounds import PRESETS
-from gtsweep.reproduction.command import tally, ties_row, cell_counts, tuned_line, tuning_table
+from gtsweep.report.tuning import tuning_table
+from gtsweep.reproduction.tuned import tuned_line
 from gtsweep.report.scale import annotate, load_scale
 from gtsweep.report.tables import build_tables
 from gtsweep.reproduction import looks as looking
@@ -170,3 +171,30 @@ def _survey_config(output: Path) -> None:
     config = {"dataset": yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text()), "experiment": {}}
     (output / ".hydra").mkdir(parents=True, exist_ok=True)
     (output / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
+
+
+def cell_counts(summaries: list[dict], views: dict) -> pd.DataFrame:
+    """Per cell: its key, status, images or pairs, and images or pairs per texture (from its per-view rows)."""
+    rows = []
+    for s in summaries:
+        cell = views.get(s.get("key"))
+        textures = cell["texture"].nunique() if cell is not None and len(cell) else 0
+        n = int(s.get("n_images") or 0)
+        rows.append({"cell": s.get("key"), "status": s.get("status"), "images_or_pairs": n,
+                     "per_texture": round(n / textures) if textures else None})
+    return pd.DataFrame(rows, columns=["cell", "status", "images_or_pairs", "per_texture"])
+
+
+def tally(per_cell: pd.DataFrame) -> str:
+    known = per_cell.dropna(subset=["per_texture"])
+    found = known.groupby("per_texture").size().sort_index(ascending=False)
+    text = "; ".join(f"{int(n)}: {k} cells" for n, k in found.items())
+    rest = len(per_cell) - len(known)
+    return text + (f"; {rest} cells without rows (not applicable or failed)" if rest else "")
+
+
+def ties_row(table) -> str:
+    t = table.ties
+    untested = f"; {len(t.untested)} without per-view rows" if t.untested else ""
+    return (f"| {table.name} | {t.best} ({t.metric} {t.best_value:.2f}) | {len(t.tied)} of {len(t.tests)}{untested} "
+            f"| {', '.join(t.tied) or '-'} |")
