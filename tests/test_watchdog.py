@@ -60,3 +60,47 @@ def test_a_vanished_sweep_has_its_parent_run_marked_failed(tmp_path):
     assert "the sweep process died" in result.stderr
     after = client.get_run(run.info.run_id)
     assert after.info.status == "FAILED" and after.data.tags["gtsweep.reason"] == "the sweep process died"
+
+
+def _ends(first: str) -> str | None:
+    """What :func:`wait_for_end` says when two stand-in processes, "sweep" (its pipe's writer) and "raylet", end
+    in the order ``first`` then the other, 0.3 s apart."""
+    import os
+    import threading
+    import time
+
+    from gtsweep.cli.watchdog import wait_for_end
+
+    read, write = os.pipe()
+    sweep, raylet = (subprocess.Popen(["sleep", "60"]) for _ in range(2))
+    found = []
+
+    def end(process):
+        process.kill()
+        process.wait()
+        if process is sweep:  # a dead process's pipe closes
+            os.close(write)
+
+    def events():
+        time.sleep(0.6)
+        order = (sweep, raylet) if first == "sweep" else (raylet, sweep)
+        end(order[0])
+        time.sleep(0.3)
+        end(order[1])
+
+    thread = threading.Thread(target=events)
+    thread.start()
+    try:
+        found.append(wait_for_end(sweep.pid, read, find_raylet=lambda pid: raylet.pid, parent=lambda: sweep.pid))
+    finally:
+        thread.join()
+        os.close(read)
+    return found[0]
+
+
+def test_a_kill_of_the_sweep_is_not_taken_for_a_lost_raylet():
+    """kill -9 of the driver ends its raylet too, just after: the cause is the sweep's death, not the raylet's."""
+    from gtsweep.cli.watchdog import PROCESS_DIED, RAYLET_LOST
+
+    assert _ends("sweep") == PROCESS_DIED
+    assert _ends("raylet") == RAYLET_LOST
