@@ -104,3 +104,31 @@ def test_a_kill_of_the_sweep_is_not_taken_for_a_lost_raylet():
 
     assert _ends("sweep") == PROCESS_DIED
     assert _ends("raylet") == RAYLET_LOST
+
+
+def test_a_kill_9_of_a_ray_sweep_leaves_no_ray_agent_behind(tmp_path):
+    """kill -9 of the driver while Ray's agents run: the watchdog says the sweep process died (not the raylet) and
+    ends the session's Ray processes, which would otherwise linger for minutes."""
+    import os
+    import signal
+    import time
+
+    import pytest
+    from sweep_helpers import session_ends, session_processes, tiny_overrides
+
+    pytest.importorskip("ray")
+    sweep = subprocess.Popen([sys.executable, "-m", "gtsweep", *tiny_overrides(tmp_path), "runner.backend=ray",
+                              "mlflow.enabled=false"], cwd=tmp_path, env=cli_env(), text=True,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.monotonic() + 180
+    while not any(b"ray::RuntimeEnvAgent" in c or b"ray::DashboardAgent" in c for c in session_processes(sweep.pid)):
+        assert sweep.poll() is None and time.monotonic() < deadline, sweep.communicate()[1][-2000:]
+        time.sleep(0.1)
+    os.kill(sweep.pid, signal.SIGKILL)
+    _, err = sweep.communicate(timeout=60)
+    assert session_ends(sweep.pid, timeout=30) == []
+    assert "the sweep process died" in err and "raylet" not in err, err[-2000:]
+
+
+test_a_kill_9_of_a_ray_sweep_leaves_no_ray_agent_behind = \
+    __import__("pytest").mark.slow(test_a_kill_9_of_a_ray_sweep_leaves_no_ray_agent_behind)

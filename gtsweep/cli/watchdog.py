@@ -6,7 +6,8 @@ no ``atexit``): the app cannot mark its MLflow parent run FAILED nor print how t
 itself (a normal end, bad input, an interrupt, :func:`~gtsweep.cli.lifecycle.exit_failed`) writes ``done`` to the
 pipe and the watchdog leaves quietly. If the pipe closes without it, the sweep process died: the watchdog marks
 the parent run (``mlflow.json`` in the output directory) FAILED with the cause — "the Ray cluster was lost (raylet
-died)" when the sweep's own raylet is gone, else "the sweep process died" — and prints the one
+died)" when the sweep's own raylet ended before it, else "the sweep process died" —, ends the Ray processes of the
+sweep's session (Ray's agents would otherwise outlive it by minutes) and prints the one
 ``gtsweep: error: ...`` line with the resume command. It ignores Ctrl-C and SIGTERM (the sweep handles those and
 says ``done``) and never outlives the pipe, so it is never orphaned.
 """
@@ -22,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
-from gtsweep.cli.lifecycle import RAYLET_LOST, failure_line
+from gtsweep.cli.lifecycle import RAYLET_LOST, end_ray_processes, failure_line
 
 DONE = b"done\n"
 POLL_S = 0.5
@@ -108,6 +109,14 @@ def _pidfd(pid: int) -> int | None:
     return None
 
 
+def ray_package_dir() -> str | None:
+    """Where Ray's package is installed (its scripts' path marks Ray's agents), without importing it."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("ray")
+    return os.path.dirname(spec.origin) if spec is not None and spec.origin else None
+
+
 def mark_failed(output_dir: Path, cause: str) -> str:
     """Mark the sweep's parent run FAILED; "" when done or when there is none, else a note why not."""
     from gtsweep.tracking.closing import mark_ended
@@ -127,6 +136,7 @@ def main(argv: list[str]) -> int:
     cause = wait_for_end(sweep_pid)
     if cause is None:
         return 0
+    end_ray_processes(ray_package_dir(), owner=sweep_pid)  # its agents would linger for minutes
     marked = mark_failed(output_dir, cause)
     kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
     print(failure_line(cause, kept, marked, resume), file=sys.stderr, flush=True)
