@@ -139,6 +139,7 @@ def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):
     run = tmp_path / "outputs" / "2026-01-01" / "10-00-00"
     run.mkdir(parents=True)
     (run / cli.SWEEP_RECORD).write_text(json.dumps({"key": cli.sweep_key(["detector=[sift]"])}))
+    (run / "mlflow.json").write_text("{}")  # a run that started (one that never did is passed over)
     assert cli.resume_args(args, multirun=False) == [f"hydra.run.dir={run}"]
     assert cli.resume_args(["detector=[orb]", "resume=true"], multirun=False) == []
 

@@ -31,6 +31,7 @@ from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
 from gtsweep.cli.schemas import register_schemas
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
+from gtsweep.core import interrupts
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted
 from gtsweep.core.searchpath import configs_of_sources, register_help_resolver, register_sources
@@ -134,6 +135,8 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
     if tracker is not None:
         summary.append(tracker.ui_hint())
     log.info("\n".join(summary))
+    if hydra_cfg.mode.name != "MULTIRUN":  # the result is out: a late Ctrl-C does not change the exit code
+        interrupts.finished()
     print("\n".join(summary))
     if outcome.failed:
         print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)

@@ -20,6 +20,7 @@ from gtsweep.cli.search import GRID_GROUPS, check_yaml, configs, parse, with_sea
 from gtsweep.core.errors import BadInput
 from gtsweep.core.registry import availability, left_out_line
 from gtsweep.orchestration.grid import REGISTRIES
+from gtsweep.orchestration.resume_pick import pick
 
 SWEEP_RECORD = "sweep.json"
 
@@ -97,14 +98,11 @@ def resume_args(args: list[str], multirun: bool) -> list[str]:
         return []
     key = sweep_key(args)
     pattern = "multirun/*/*/*/" + SWEEP_RECORD if multirun else "outputs/*/*/" + SWEEP_RECORD
-    records = [p for p in Path.cwd().glob(pattern) if json.loads(p.read_text()).get("key") == key]
-    if not records:
-        print("gtsweep: resume=true but no earlier run of this command was found; starting afresh", file=sys.stderr)
+    picked = pick(list(Path.cwd().glob(pattern)), key)  # the newest directory that holds a run, and why
+    print(f"gtsweep: {picked.why}", file=sys.stderr)
+    if picked.directory is None:
         return []
-    newest = max(records, key=lambda p: p.stat().st_mtime)
-    if multirun:
-        return [f"hydra.sweep.dir={newest.parent.parent}"]
-    return [f"hydra.run.dir={newest.parent}"]
+    return [f"hydra.sweep.dir={picked.directory.parent}" if multirun else f"hydra.run.dir={picked.directory}"]
 
 
 def prepare(args: list[str]) -> list[str]:

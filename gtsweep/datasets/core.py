@@ -32,18 +32,30 @@ def read_gray(path: str | Path) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Sample:
-    """One camera image: ``pose`` maps its pixels to map pixels (3x3 float64), or is None when unknown."""
+    """One camera image: ``pose`` maps its pixels to map pixels (3x3 float64), or is None when unknown;
+    ``max_pixels``: a larger image is downscaled to at most that many pixels on load (a data set without poses)."""
 
     id: str
     texture: str
     path: str | None
     pose: np.ndarray | None = None
+    max_pixels: int | None = None
 
     def load(self) -> np.ndarray:
         """The image as 2-D uint8 gray."""
         if self.path is None:
             raise BadInput(f"sample {self.id} has no image file")
-        return read_gray(self.path)
+        image = read_gray(self.path)
+        return downscaled(image, self.max_pixels) if self.max_pixels else image
+
+
+def downscaled(image: np.ndarray, max_pixels: int) -> np.ndarray:
+    """``image`` shrunk by one factor on both sides (area interpolation) to at most ``max_pixels`` pixels."""
+    if image.size <= max_pixels:
+        return image
+    factor = (max_pixels / image.size) ** 0.5
+    size = (max(1, int(image.shape[1] * factor)), max(1, int(image.shape[0] * factor)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 @dataclass(frozen=True, eq=False)

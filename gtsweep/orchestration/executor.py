@@ -207,10 +207,7 @@ def ray_options(runner_cfg: Mapping) -> dict:
     if level not in RAY_LOG_LEVELS:
         raise BadInput(f"runner.ray_log_level must be one of {', '.join(RAY_LOG_LEVELS)}, got {level!r}")
     dashboard = bool(runner_cfg.get("dashboard", False))
-    if dashboard:
-        missing = _dashboard_missing()
-        if missing:
-            raise BadInput(f"runner.dashboard=true needs Ray's dashboard: pip install 'ray[default]' ({missing})")
+    check_dashboard(runner_cfg)
     options = {"include_dashboard": dashboard, "logging_level": RAY_LOG_LEVELS[level], "log_to_driver": True}
     if dashboard:
         options["dashboard_host"] = "127.0.0.1"
@@ -220,6 +217,15 @@ def ray_options(runner_cfg: Mapping) -> dict:
     if runtime_env:
         options["runtime_env"] = runtime_env
     return options
+
+
+def check_dashboard(runner_cfg: Mapping) -> None:
+    """``runner.dashboard=true`` with Ray's backend needs Ray's dashboard packages: a one-line BadInput otherwise
+    (pre-flight: before any output directory or MLflow run exists)."""
+    if runner_cfg.get("dashboard") and (runner_cfg.get("backend") or "ray") == "ray":
+        missing = _dashboard_missing()
+        if missing:
+            raise BadInput(f"runner.dashboard=true needs Ray's dashboard: pip install 'ray[default]' ({missing})")
 
 
 def _dashboard_missing() -> str | None:

@@ -55,3 +55,7 @@ def check_settings(cfg: Mapping) -> None:
     values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")
               if key in cfg}
     check_all(values, SETTINGS)
+    if (values.get("runner") or {}).get("dashboard"):  # its packages, before anything is created
+        from gtsweep.orchestration.executor import check_dashboard
+
+        check_dashboard(values["runner"])

@@ -21,6 +21,7 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput
 from gtsweep.datasets import load_dataset
+from gtsweep.datasets.pixels import check_dataset
 from gtsweep.orchestration.cache import cache_state
 from gtsweep.orchestration.cluster import check_address, cluster_record
 from gtsweep.orchestration.executor import backend
@@ -103,6 +104,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     cache_dir, cache_note = cache_state(cfg)
     progress.phase("render data set")
     data = work.load_data(cfg, grid)
+    check_dataset(getattr(data, "dataset", data), grid.cells, runner_cfg)  # largest image x workers x B/px
     log.info("data set '%s', fingerprint %s", data.name, data.fingerprint)
     seed = int(cfg.get("seed", 0))
     store = ResultStore(output_dir)
