@@ -72,16 +72,16 @@ def run_on(device: str, name: str, image: np.ndarray, positions: np.ndarray):
     return detection, described, seconds
 
 
-def method_checks(views: list[np.ndarray], other: str) -> bool:
+def method_checks(views: list[np.ndarray], other: str, methods: list[str]) -> bool:
     """Step 1: each method's agreement between the CPU and ``other`` and times; True if every check passed."""
     import cv2
 
     from gtsweep.stages.select import select_nms
 
     print(f"| method | view | keypoints cpu/{other} | matched share | min cosine (pairs) | min cosine (SIFT kps) "
-          f"| cpu s | {other} s | passed |\n|---|---|---|---|---|---|---|---|---|")
+          f"| s on cpu | s on {other} | passed |\n|---|---|---|---|---|---|---|---|---|")
     passed = True
-    for name in METHODS:
+    for name in methods:
         for index, image in enumerate(views):
             sift = cv2.SIFT_create().detect(image, None)
             rows = np.array([(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave, k.class_id) for k in sift])
@@ -100,15 +100,18 @@ def method_checks(views: list[np.ndarray], other: str) -> bool:
 
 def lightglue_check(views: list[np.ndarray], other: str) -> bool:
     """Step 2: LightGlue's matches of two views' ALIKED-n16rot features on the CPU and ``other``."""
+    from gtsweep.stages import learned
     from gtsweep.stages.lightglue import LightGlueMatcher, Side
 
     first, second = views[0], views[min(1, len(views) - 1)]
     found = {}
     for device in (devices.CPU, other):
-        features = [run_on(device, "aliked_n16rot", view, np.zeros((0, 2)))[0] for view in (first, second)]
-        sides = [Side(np.column_stack([f.xy, np.zeros((len(f.xy), 5))]), view.shape, "aliked_n16rot")
-                 for f, view in zip(features, (first, second))]
         with devices.using(device):
+            feature = learned.ALIKED_create("aliked-n16rot")
+            learned.DETECTIONS.clear()
+            features = [feature.detect_arrays(view) for view in (first, second)]
+            sides = [Side(np.column_stack([f.xy, np.zeros((len(f.xy), 5))]), view.shape, "aliked_n16rot")
+                     for f, view in zip(features, (first, second))]
             index = LightGlueMatcher().index(features[1].descriptors, "L2", sides[1])
             found[device] = {tuple(m) for m in index.match(features[0].descriptors, sides[0]).tolist()}
     cpu, gpu = (found[devices.CPU], found[other]) if other != devices.CPU else (found[devices.CPU],) * 2
@@ -137,6 +140,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=3, help="survey views per method (1-5)")
     parser.add_argument("--skip-sweep", action="store_true", help="leave out step 3 (two smoke sweeps)")
+    parser.add_argument("--methods", nargs="*", choices=list(METHODS), default=list(METHODS),
+                        help="the learned methods of step 1 (default: all three)")
     parser.add_argument("--against", choices=(devices.CUDA, devices.CPU), default=devices.CUDA,
                         help="the device compared with the CPU (cpu: a dry run of this script)")
     args = parser.parse_args()
@@ -151,15 +156,15 @@ def main() -> None:
           f"{tolerance.KEYPOINT_RADIUS} px (mutual nearest neighbours), cosine >= {tolerance.DESCRIPTOR_COSINE}\n")
     start = time.perf_counter()
     views = survey_views(max(1, min(args.views, 5)))
-    passed = method_checks(views, args.against) & lightglue_check(views, args.against)
+    passed = method_checks(views, args.against, args.methods) & lightglue_check(views, args.against)
     if not args.skip_sweep:
         with tempfile.TemporaryDirectory() as folder:
             cpu = sweep_verdicts(devices.CPU, Path(folder) / "first")
             gpu = sweep_verdicts(args.against, Path(folder) / "second")
         same = tolerance.same_verdicts(cpu, gpu)
         passed &= same
-        print(f"\nsmoke sweep pose verdicts ({len(cpu)} pair rows; {sum(cpu)} successes on cpu, {sum(gpu)} on {args.against}): "
-              f"{'the same' if same else 'DIFFERENT'}")
+        print(f"\nsmoke sweep pose verdicts ({len(cpu)} pair rows; {sum(cpu)} successes on cpu, {sum(gpu)} on "
+              f"{args.against}): {'the same' if same else 'DIFFERENT'}")
     print(f"\ngpu_check {'passed' if passed else 'FAILED'} in {time.perf_counter() - start:.0f} s")
     sys.exit(0 if passed else 1)
 
