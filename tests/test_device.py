@@ -236,3 +236,13 @@ def test_pose_verdicts_must_be_the_same_for_every_pair():
     assert tolerance.same_verdicts([True, False, True], [1, 0, 1])
     assert not tolerance.same_verdicts([True, False], [True, True])
     assert not tolerance.same_verdicts([True], [True, False])
+
+
+def test_cuda_without_a_device_stops_in_the_preflight_before_any_output(monkeypatch):
+    from gtsweep.cli import preflight
+
+    monkeypatch.setattr(devices, "cuda_available", lambda: False)
+    with pytest.raises(BadInput, match="runner.device=cuda, but torch sees no CUDA device"):
+        preflight.check(["sweeps=smoke", "detector=[aliked_n16rot]", "descriptor=[aliked_n16rot]",
+                         "runner.device=cuda"])
+    preflight.check(["sweeps=smoke", "detector=[sift]", "descriptor=[sift]", "runner.device=cuda"])  # nothing moves

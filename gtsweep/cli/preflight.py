@@ -24,11 +24,13 @@ from gtsweep.cli.search import (
     user_searchpath,
     with_searchpath,
 )
+from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, nearest
 from gtsweep.core.factories import check_composed
 from gtsweep.core.registry import require_available
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
+from gtsweep.stages import device as devices
 
 SINGLE_GROUPS = ("dataset", "experiment", "sweeps")
 KINDS = {"IntegerNode": "an int", "FloatNode": "a float", "BooleanNode": "a bool", "StringNode": "a str"}
@@ -150,6 +152,18 @@ def check(args: list[str]) -> None:
                     check_declared(cfg, *found, args)
             check_composed(cfg, overrides)
             check_settings(cfg)
+            check_device(cfg)
+
+
+def check_device(cfg) -> None:
+    """``runner.device=cuda`` where torch sees no CUDA device and the grid has a torch method: one line, before
+    the output directory exists (``auto`` falls back to the CPU and never fails)."""
+    runner = plain(cfg.get("runner")) or {}
+    if runner.get("device") != devices.CUDA:
+        return
+    chosen = {group: plain(cfg.get(group)) or {} for group in devices.TORCH_METHODS}
+    devices.resolve(devices.CUDA, any(devices.moves(group, name) for group, names in chosen.items()
+                                      for name in names))
 
 
 def values_of(override) -> list:

@@ -16,11 +16,13 @@ bytes:
 from __future__ import annotations
 
 import functools
+import logging
 import os
 
 import numpy as np
 
 F32 = np.float32
+log = logging.getLogger(__name__)
 
 #: The environment variable that forces the NumPy sampler ("numpy") instead of the compiled one.
 KERNEL_ENV = "GTSWEEP_SURF_KERNEL"
@@ -131,16 +133,26 @@ def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
             row_y += cos_dir[k]
 
 
+#: The compiled loop's one signature: image, row starts x and y, column steps cos and sin, output windows.
+SIGNATURE = "void(uint8[:, ::1], float32[::1], float32[::1], float32[::1], float32[::1], uint8[:, :, ::1])"
+
+
 @functools.lru_cache(maxsize=1)
 def compiled_loop():
-    """The Numba-compiled :func:`_sample_loop`, or None when Numba is not installed or the NumPy path is forced."""
+    """The Numba-compiled :func:`_sample_loop` (compiled here, once per process, or read from Numba's cache), or
+    None when Numba is not installed, cannot compile it (a warning), or the NumPy path is forced."""
     if os.environ.get(KERNEL_ENV, "").lower() == "numpy":
         return None
     try:
         import numba
     except ImportError:
         return None
-    return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(_sample_loop)
+    try:
+        return numba.njit(SIGNATURE, cache=True, nogil=True, fastmath=False, error_model="numpy")(_sample_loop)
+    except Exception as e:  # noqa: BLE001 - any Numba/LLVM failure: the NumPy path gives the same numbers
+        log.warning("SURF: Numba could not compile the window sampler (%s); using the NumPy path",
+                    str(e).splitlines()[0] if str(e) else type(e).__name__)
+        return None
 
 
 def batch_pixels() -> int:
