@@ -25,6 +25,23 @@ def cluster_address(runner_cfg: Mapping) -> str:
     return str(runner_cfg.get("address") or os.environ.get("RAY_ADDRESS") or "local")
 
 
+def this_machines_cluster(address: str) -> bool:
+    """Whether ``host:port`` names the cluster this machine runs (the one ``ray start`` recorded, which ``auto``
+    finds): the same port, on a loopback address or the recorded host. Ray joins that one as ``auto`` does, with
+    its token when it has one (an explicit address of another machine needs ``RAY_AUTH_MODE=token``)."""
+    try:
+        from ray._private.utils import read_ray_address
+
+        recorded = read_ray_address()
+    except (ImportError, OSError):
+        return False
+    if not recorded or address in ("local", "auto"):
+        return False
+    host, _, port = address.split("://")[-1].rpartition(":")
+    recorded_host, _, recorded_port = recorded.rpartition(":")
+    return port == recorded_port and (host in (recorded_host, "localhost") or host.startswith("127."))
+
+
 def address_source(runner_cfg: Mapping) -> str:
     return "runner.address" if runner_cfg.get("address") else "RAY_ADDRESS"
 

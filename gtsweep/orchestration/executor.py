@@ -23,7 +23,14 @@ from typing import Any, Callable, Iterator, Mapping
 from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.interrupts import raise_pending
-from gtsweep.orchestration.cluster import address_source, check_address, cluster_address, record_cluster, record_serial
+from gtsweep.orchestration.cluster import (
+    address_source,
+    check_address,
+    cluster_address,
+    record_cluster,
+    record_serial,
+    this_machines_cluster,
+)
 
 BACKENDS = ("ray", "serial")
 log = logging.getLogger(__name__)
@@ -268,6 +275,22 @@ def _loopback_only():
             os.environ[key] = saved
 
 
+#: The address this process joined a cluster with (``runner.address`` / ``$RAY_ADDRESS`` as given).
+_joined: dict = {}
+
+
+def _token_auth_if_available() -> None:
+    """Ray's own rule for a cluster found on this machine: token authentication when ``RAY_AUTH_MODE`` is unset
+    and a token exists (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or ``~/.ray/auth_token``)."""
+    try:
+        from ray._private.authentication.authentication_token_setup import (
+            maybe_enable_token_auth_if_token_available,
+        )
+    except ImportError:  # a Ray without token authentication
+        return
+    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+
+
 def connect(runner_cfg: Mapping) -> None:
     """Start or join Ray once per process.
 
@@ -283,7 +306,7 @@ def connect(runner_cfg: Mapping) -> None:
     address = cluster_address(runner_cfg)
     if ray.is_initialized():
         current = ray.get_runtime_context().gcs_address
-        if address in ("local", "auto") or address.split("://")[-1] == current:
+        if address in ("local", "auto") or address.split("://")[-1] == current or address == _joined.get("address"):
             return
         # Ray 2.60 hangs in its GCS client when a process that has run Ray joins another cluster after
         # ray.shutdown(): say so instead (the CLI runs one sweep per process, so only library use meets this).
@@ -302,8 +325,11 @@ def connect(runner_cfg: Mapping) -> None:
                                            **options))
             record_cluster()
             return
+        if this_machines_cluster(address):  # as `auto` joins it: with this machine's token, if it has one
+            _token_auth_if_available()
         try:
             _report_dashboard(ray.init(address=address, **options))
+            _joined["address"] = address  # Ray reports the head's own address, which may differ (127.0.0.1)
         except (ConnectionError, RuntimeError, ValueError) as e:
             hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
             raise BadInput(f"cannot join the Ray cluster at '{address}' ({address_source(runner_cfg)}): "

@@ -42,11 +42,13 @@ from gtsweep.tracking.params import (
 )
 from gtsweep.tracking.store import git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (
+    PAIRING_TAG,
     cell_names,
     child_name,
     cluster_tags,
     model_development,
     ms,
+    pairing_label,
     quiet_mlflow,
     source_tags,
     unique_name,
@@ -108,6 +110,7 @@ class SweepTracker:
         self.config, self.fingerprint, self.written = parsed_config(self.config_yaml), dataset_fingerprint, \
             written_options()
         self.output_dir.mkdir(parents=True, exist_ok=True)
+        self.sweep_name = self.client.get_run(self.nest_under).info.run_name if self.nest_under else None
         record = self.output_dir / PARENT_RECORD
         if record.exists():
             self.parent_id = json.loads(record.read_text())["parent_run_id"]
@@ -176,13 +179,16 @@ class SweepTracker:
         from gtsweep.evaluation import schema
 
         params = cell_params(cell, self.grid.cell_config(cell, "", 0), self.config, self.fingerprint, self.written)
+        cell_name = self.names.get(cell.key, cell.key)
+        pairing = pairing_label(cell_name, self.sweep_name, self.run_name) if self.sweep_name else \
+            pairing_label(cell_name, self.run_name)
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
-                STATUS_TAG: summary["status"], **method_tags(cell), **self.source}
+                STATUS_TAG: summary["status"], PAIRING_TAG: pairing, **method_tags(cell), **self.source}
         if summary.get("reason"):
             tags[REASON_TAG] = str(summary["reason"])[:5000]
         if summary.get("n_views") is not None:  # views (or pairs) per cell: the report's table titles say it
             tags[VIEWS_TAG] = str(summary["n_views"])
-        name = child_name(self.names.get(cell.key, cell.key), self.run_name)
+        name = child_name(cell_name, self.run_name)
         run = self.client.create_run(self.experiment_id, run_name=name, tags=tags,
                                      start_time=ms(summary.get("started")))
         now = ms(summary.get("ended")) or int(time.time() * 1000)
