@@ -143,7 +143,8 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
 
     from gtsweep.orchestration.cache import library_versions
     from gtsweep.orchestration.skeleton import run_sweep
-    from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow, views_from_mlflow
+    from gtsweep.tracking.readback import summaries_from_mlflow, views_from_mlflow
+    from gtsweep.tracking.sweep import SweepTracker
 
     monkeypatch.chdir(tmp_path)
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

@@ -56,6 +56,6 @@ def check_settings(cfg: Mapping) -> None:
               if key in cfg}
     check_all(values, SETTINGS)
     if (values.get("runner") or {}).get("dashboard"):  # its packages, before anything is created
-        from gtsweep.orchestration.executor import check_dashboard
+        from gtsweep.orchestration.dashboard import check_dashboard
 
         check_dashboard(values["runner"])
