@@ -57,9 +57,20 @@ def sample_numpy(gray: np.ndarray, pixels: np.ndarray, start_x, start_y, cos_dir
 
     Sample ``(i, j)`` lies at ``(row_x[i] + j cos, row_y[i] - j sin)`` (float64). Its value is
     ``cvRound(p00 (1-a)(1-b) + p01 a (1-b) + p10 (1-a) b + p11 a b)`` in float32; a sample whose 2x2
-    neighbourhood leaves the image takes the nearest (clamped) pixel.
+    neighbourhood leaves the image takes the nearest (clamped) pixel. Blocks of rows of at most
+    :data:`NUMPY_BATCH_PIXELS` samples keep the temporaries in cache (a large keypoint's window alone has 10^5).
     """
     row_x, row_y = window_rows(start_x, start_y, cos_dir, sin_dir, win)
+    out = np.empty((len(row_x), win, win), np.uint8)
+    block = max(1, NUMPY_BATCH_PIXELS // (len(row_x) * win))
+    for top in range(0, win, block):
+        rows = slice(top, top + block)
+        out[:, rows] = _bilinear_rows(gray, pixels, row_x[:, rows], row_y[:, rows], cos_dir, sin_dir, win)
+    return out
+
+
+def _bilinear_rows(gray: np.ndarray, pixels: np.ndarray, row_x, row_y, cos_dir, sin_dir, win: int):
+    """:func:`sample_numpy` for the window rows that start at ``(row_x, row_y)`` ``(n, rows)``."""
     steps = np.arange(win, dtype=np.float64)
     px = row_x.astype(np.float64)[:, :, None] + (steps * cos_dir.astype(np.float64)[:, None])[:, None, :]
     py = row_y.astype(np.float64)[:, :, None] - (steps * sin_dir.astype(np.float64)[:, None])[:, None, :]
@@ -67,9 +78,9 @@ def sample_numpy(gray: np.ndarray, pixels: np.ndarray, start_x, start_y, cos_dir
     a = np.subtract(px, ix, out=np.empty(px.shape, F32), casting="same_kind")
     b = np.subtract(py, iy, out=np.empty(py.shape, F32), casting="same_kind")
     rows, cols = gray.shape
-    # Positions are monotonic along rows and columns, so the window's corners bound them all.
-    ends = [0, win - 1]
-    corners_x, corners_y = ix[:, ends][:, :, ends], iy[:, ends][:, :, ends]
+    # Positions are monotonic along rows and columns, so the block's corners bound them all.
+    row_ends, ends = [0, row_x.shape[1] - 1], [0, win - 1]
+    corners_x, corners_y = ix[:, row_ends][:, :, ends], iy[:, row_ends][:, :, ends]
     all_inside = (corners_x.min() >= 0 and corners_x.max() < cols - 1
                   and corners_y.min() >= 0 and corners_y.max() < rows - 1)
     if not all_inside:
