@@ -13,6 +13,7 @@ numbers may differ.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import functools
 from typing import Iterator
 
@@ -28,7 +29,8 @@ TORCH_METHODS = {
     "matcher": frozenset({"lightglue"}),
 }
 
-_current = CPU
+#: The device of the computation running in this context (a context variable: no module-level run state).
+_current: contextvars.ContextVar[str] = contextvars.ContextVar("gtsweep_device", default=CPU)
 
 
 def cuda_available() -> bool:
@@ -86,20 +88,19 @@ def full_precision_cuda() -> None:
 
 def current() -> str:
     """The device of the computation running in this process (:func:`using`); cpu outside any."""
-    return _current
+    return _current.get()
 
 
 @contextlib.contextmanager
 def using(device: str | None) -> Iterator[str]:
     """Run the torch methods of the enclosed computation on ``device`` (None: cpu); restored afterwards."""
-    global _current
     device = CPU if device is None else device
     if device not in (CPU, CUDA):
         raise BadInput(f"a task's device must be {CPU} or {CUDA}, got {device!r}")
     if device == CUDA:
         full_precision_cuda()
-    before, _current = _current, device
+    token = _current.set(device)
     try:
         yield device
     finally:
-        _current = before
+        _current.reset(token)
