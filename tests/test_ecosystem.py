@@ -11,7 +11,7 @@ import pytest
 
 from gtsweep.core.errors import BadInput
 from gtsweep.optimize.tuned_files import storage_label
-from gtsweep.orchestration import executor, settings
+from gtsweep.orchestration import executor
 from gtsweep.report.combine import combine, mean_summary
 from gtsweep.report.tables import sample_note
 from gtsweep.tracking.tags import cell_names, overrides_name
@@ -21,10 +21,10 @@ def test_ray_options_hide_rays_warnings_and_the_dashboard_unless_asked(monkeypat
     options = executor.ray_options({})
     assert options["include_dashboard"] is False and options["logging_level"] == logging.ERROR
     assert executor.ray_options({"ray_log_level": "warning"})["logging_level"] == logging.WARNING
-    monkeypatch.setattr(settings, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
+    monkeypatch.setattr(executor, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
     with pytest.raises(BadInput, match=r"runner.dashboard=true needs Ray's dashboard: pip install 'ray\[default\]'"):
         executor.ray_options({"dashboard": True})
-    monkeypatch.setattr(settings, "_dashboard_missing", lambda: None)
+    monkeypatch.setattr(executor, "_dashboard_missing", lambda: None)
     assert executor.ray_options({"dashboard": True})["include_dashboard"] is True
 
 

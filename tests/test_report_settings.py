@@ -136,7 +136,7 @@ def test_failed_cells_end_the_multirun_in_1_even_when_combining_breaks(tmp_path,
 def test_the_multiruns_mlflow_run_is_marked_failed_with_the_failed_cells(tmp_path):
     from mlflow.tracking import MlflowClient
 
-    from gtsweep.tracking.closing import close_multirun, open_multirun
+    from gtsweep.tracking.sweep import close_multirun, open_multirun
 
     cfg = {"tracking_uri": f"sqlite:///{tmp_path}/m.db", "experiment": "gtsweep"}
     run_id = open_multirun(cfg, "multirun experiment.foreign_scale=own,passthrough", tmp_path)

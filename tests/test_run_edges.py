@@ -13,11 +13,11 @@ from sweep_helpers import cli_env, tiny_overrides
 from gtsweep.cli.overrides import prepare
 from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
-from gtsweep.orchestration import settings
+from gtsweep.orchestration import executor
 
 
 def test_the_dashboard_without_its_packages_is_refused_in_the_pre_flight(monkeypatch):
-    monkeypatch.setattr(settings, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
+    monkeypatch.setattr(executor, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
     with pytest.raises(BadInput, match=r"runner.dashboard=true needs Ray's dashboard: pip install 'ray\[default\]' "
                                        r"\(No module named 'aiohttp_cors'\)"):
         prepare(["runner.dashboard=true", "detector=[orb]"])
@@ -25,7 +25,7 @@ def test_the_dashboard_without_its_packages_is_refused_in_the_pre_flight(monkeyp
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(settings._dashboard_missing() is None, reason="Ray's dashboard is installed here")
+@pytest.mark.skipif(executor._dashboard_missing() is None, reason="Ray's dashboard is installed here")
 def test_the_dashboard_refusal_creates_no_directory_and_no_mlflow_run(tmp_path):
     result = subprocess.run([sys.executable, "-m", "gtsweep", "runner.dashboard=true", "detector=[orb]"],
                             cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300)

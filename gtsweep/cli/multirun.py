@@ -35,7 +35,7 @@ class MultirunReport(Callback):
         overrides = list(config.hydra.overrides.task)
         record = {**multirun_record(sweep_dir), "swept": swept_keys(overrides)}
         if config.mlflow.enabled:
-            from gtsweep.tracking.closing import open_multirun
+            from gtsweep.tracking.sweep import open_multirun
 
             swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record["swept"]]
             record["parent_run_id"] = open_multirun(config.mlflow, "multirun " + overrides_name(swept, ""),
@@ -60,7 +60,7 @@ class MultirunReport(Callback):
                 print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")
             record = multirun_record(sweep_dir)
             if record.get("parent_run_id"):
-                from gtsweep.tracking.closing import close_multirun
+                from gtsweep.tracking.sweep import close_multirun
 
                 close_multirun(config.mlflow, record["parent_run_id"],
                                [f for f in files if f.parent == sweep_dir / "combined"], reason)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib.util
 import logging
 import os
 import signal
@@ -23,7 +24,6 @@ from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.interrupts import raise_pending
 from gtsweep.orchestration.cluster import address_source, check_address, cluster_address, record_cluster, record_serial
-from gtsweep.orchestration.settings import check_dashboard
 
 BACKENDS = ("ray", "serial")
 log = logging.getLogger(__name__)
@@ -210,6 +210,26 @@ def ray_options(runner_cfg: Mapping) -> dict:
     if runtime_env:
         options["runtime_env"] = runtime_env
     return options
+
+
+def check_dashboard(runner_cfg: Mapping) -> None:
+    """``runner.dashboard=true`` with Ray's backend needs Ray's dashboard packages: a one-line BadInput otherwise
+    (pre-flight: before any output directory or MLflow run exists)."""
+    if runner_cfg.get("dashboard") and (runner_cfg.get("backend") or "ray") == "ray":
+        missing = _dashboard_missing()
+        if missing:
+            raise BadInput(f"runner.dashboard=true needs Ray's dashboard: pip install 'ray[default]' ({missing})")
+
+
+def _dashboard_missing() -> str | None:
+    """Why Ray's dashboard cannot start (the minimal ``ray`` lacks its packages), else None."""
+    try:
+        from ray._private.utils import get_dashboard_dependency_error
+
+        error = get_dashboard_dependency_error()
+    except ImportError as e:  # a Ray without that helper: try the dashboard's own package
+        error = e if importlib.util.find_spec("aiohttp") is None else None
+    return None if error is None else str(error)
 
 
 def _report_dashboard(context) -> None:

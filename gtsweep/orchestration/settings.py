@@ -6,11 +6,9 @@ Method parameters and transform strengths are checked by their registries (:mod:
 """
 from __future__ import annotations
 
-import importlib.util
 from typing import Mapping
 
 from gtsweep.core.config import plain
-from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import Choice, ListOf, Range, check_all
 from gtsweep.stages.scales import FOREIGN_SCALES
 
@@ -55,24 +53,7 @@ def check_settings(cfg: Mapping) -> None:
     values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")
               if key in cfg}
     check_all(values, SETTINGS)
-    check_dashboard(values.get("runner") or {})  # its packages, before anything is created
+    if (values.get("runner") or {}).get("dashboard"):  # its packages, before anything is created
+        from gtsweep.orchestration.executor import check_dashboard
 
-
-def check_dashboard(runner_cfg: Mapping) -> None:
-    """``runner.dashboard=true`` with Ray's backend needs Ray's dashboard packages: a one-line BadInput otherwise
-    (pre-flight: before any output directory or MLflow run exists)."""
-    if runner_cfg.get("dashboard") and (runner_cfg.get("backend") or "ray") == "ray":
-        missing = _dashboard_missing()
-        if missing:
-            raise BadInput(f"runner.dashboard=true needs Ray's dashboard: pip install 'ray[default]' ({missing})")
-
-
-def _dashboard_missing() -> str | None:
-    """Why Ray's dashboard cannot start (the minimal ``ray`` lacks its packages), else None."""
-    try:
-        from ray._private.utils import get_dashboard_dependency_error
-
-        error = get_dashboard_dependency_error()
-    except ImportError as e:  # a Ray without that helper: try the dashboard's own package
-        error = e if importlib.util.find_spec("aiohttp") is None else None
-    return None if error is None else str(error)
+        check_dashboard(values["runner"])

@@ -3,17 +3,9 @@
 A run that stops (bad input, a failure, an interrupt) is closed FAILED or KILLED with its reason as the tag
 :data:`REASON_TAG`. The next run in the same output directory reopens it; one it finds still RUNNING was left so by
 a process that was killed (an output directory is locked for one run at a time) and is first closed KILLED with
-:data:`LEFT_RUNNING`. When a resume finishes the run, the old reason moves to :data:`RESUMED_AFTER_TAG`. A
-multirun's own run (above its jobs' parent runs) opens and closes here too.
+:data:`LEFT_RUNNING`. When a resume finishes the run, the old reason moves to :data:`RESUMED_AFTER_TAG`.
 """
 from __future__ import annotations
-
-import sys
-from pathlib import Path
-from typing import Mapping
-
-from gtsweep.tracking.store import open_store, tracking_uri
-from gtsweep.tracking.tags import model_development, quiet_mlflow, source_tags, unique_name
 
 REASON_TAG = "gtsweep.reason"
 #: The reason a parent run is closed with when the next run in its directory finds it RUNNING.
@@ -53,31 +45,3 @@ def mark_ended(client, run_id: str, reason: str, status: str) -> str:
         return f" (the MLflow run {run_id} could not be marked {status}: " \
                f"{(str(e).strip().splitlines() or [type(e).__name__])[0][:200]})"
     return ""
-
-
-def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
-    """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
-    quiet_mlflow()
-    client, experiment = open_store(cfg, (cfg or {}).get("experiment") or "gtsweep")  # locked first use
-    if previous is not None:
-        reopen(client, previous)
-        return previous
-    model_development(client, experiment)
-    tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.role": "multirun",
-            "gtsweep.output_dir": str(sweep_dir), **source_tags()}
-    return client.create_run(experiment, run_name=unique_name(client, experiment, name), tags=tags).info.run_id
-
-
-def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = (), failed: str = "") -> None:
-    """Attach the combined table and report to the multirun's run and close it: FINISHED, or FAILED with
-    ``failed`` as the reason (e.g. the cells that failed in its jobs)."""
-    from mlflow.tracking import MlflowClient
-
-    client = MlflowClient(tracking_uri(cfg))
-    for path in artifacts:
-        client.log_artifact(run_id, str(path), "combined")
-    if failed:
-        mark_ended(client, run_id, failed, "FAILED")
-    else:
-        clear_reason(client, run_id)
-        client.set_terminated(run_id, "FINISHED")

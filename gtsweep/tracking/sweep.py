@@ -58,6 +58,8 @@ CELL_TAG, HASH_TAG, STATUS_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
 RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.skeleton)
 VIEWS_FILE = "views.csv"  # a child run's per-view rows (one name in every run: MLflow's compare page shows them)
+
+
 VIEWS_TAG = "gtsweep.n_views"
 STALE_TAG = "gtsweep.stale"  # a deleted child whose cell was computed again with another configuration
 
@@ -374,3 +376,31 @@ def views_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict:
             if name is not None:
                 views[key] = pd.read_csv(client.download_artifacts(run.info.run_id, name, tmp))
     return views
+
+
+def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
+    """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
+    quiet_mlflow()
+    client, experiment = open_store(cfg, (cfg or {}).get("experiment") or "gtsweep")  # locked first use
+    if previous is not None:
+        reopen(client, previous)
+        return previous
+    model_development(client, experiment)
+    tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.role": "multirun",
+            "gtsweep.output_dir": str(sweep_dir), **source_tags()}
+    return client.create_run(experiment, run_name=unique_name(client, experiment, name), tags=tags).info.run_id
+
+
+def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = (), failed: str = "") -> None:
+    """Attach the combined table and report to the multirun's run and close it: FINISHED, or FAILED with
+    ``failed`` as the reason (e.g. the cells that failed in its jobs)."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri(cfg))
+    for path in artifacts:
+        client.log_artifact(run_id, str(path), "combined")
+    if failed:
+        mark_ended(client, run_id, failed, "FAILED")
+    else:
+        clear_reason(client, run_id)
+        client.set_terminated(run_id, "FINISHED")
