@@ -59,14 +59,19 @@ def numbered(low: int, high: int | None = None, skip_texture: str | None = None)
 
 # --- findings 3, 4, 9 at their final look (frozen picks) ---------------------------------------------------------
 
-def best_repeatability_final(data):
+def _named_vs_frozen(data, test) -> tuple[dict, list[str], list]:
+    """SIFT, AKAZE and SURF each against the frozen best other detector (CenSurE) on the images ``test`` selects:
+    (Table 3's cells, the named detectors, the comparisons; none without every cell)."""
     cells, rival = table3(data), FROZEN["best_repeatability"]
     named = [x for x in ("sift", "akaze", "surf") if x in cells]
     if len(named) < 3 or rival not in cells:
-        return []
-    test = old_half1_and_new(ROUNDS_SYNTHETIC)
-    return [pair_claim(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN, cells[x],
-                  cells[rival], "repeatability", half=test) for x in named]
+        return cells, named, []
+    return cells, named, [pair_claim(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN,
+                                     cells[x], cells[rival], "repeatability", half=test) for x in named]
+
+
+def best_repeatability_final(data):
+    return _named_vs_frozen(data, old_half1_and_new(ROUNDS_SYNTHETIC))[2]
 
 
 def sift_ambiguous_final(data):
@@ -103,15 +108,12 @@ def selectors_restated(data):
 
 def best_repeatability_restated(data):
     """3': each named detector ranks with the frozen best other, and the three lie within one printed step."""
-    cells, rival = table3(data), FROZEN["best_repeatability"]
-    named = [x for x in ("sift", "akaze", "surf") if x in cells]
-    if len(named) < 3 or rival not in cells:
-        return []
     test = numbered(ROUNDS_SYNTHETIC)
-    best_part = [pair_claim(data, f"{x} vs {rival} (frozen round-5 pick)", AMONG, REPEATABILITY_MARGIN, cells[x],
-                       cells[rival], "repeatability", half=test) for x in named]
-    span = [pair_claim(data, f"{a} vs {b} (span)", WITHIN, SPAN_MARGIN, cells[a], cells[b], "repeatability", half=test)
-            for i, a in enumerate(named) for b in named[i + 1:]]
+    cells, named, best_part = _named_vs_frozen(data, test)
+    if not best_part:
+        return []
+    span = [pair_claim(data, f"{a} vs {b} (span)", WITHIN, SPAN_MARGIN, cells[a], cells[b], "repeatability",
+                       half=test) for i, a in enumerate(named) for b in named[i + 1:]]
     return best_part + span
 
 
