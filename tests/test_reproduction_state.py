@@ -101,3 +101,16 @@ def test_rebuild_units_follow_the_recorded_counts():
 
 def test_design_digest_reads_the_amendment():
     assert len(design_digest()) == 16
+
+
+@pytest.mark.slow
+def test_committed_state_restores_to_the_recorded_verdicts(tmp_path):
+    """The committed state, restored into an empty work directory and judged again look by look, gives every
+    finding it has rebuilt to its recorded last look the verdict and numbers the round-5 record prints."""
+    from gtsweep.reproduction import looks, verify
+
+    held = states.load(states.STATE_DIR)
+    written = states.restore(held, tmp_path)
+    assert {p.name for p in written} == set(held.presets)
+    checks = verify.check(looks.replay(held, 0.05))
+    assert all(c.equal for c in checks), "\n".join(verify.report(checks))
