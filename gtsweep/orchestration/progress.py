@@ -30,10 +30,11 @@ class Progress:
             self._redirect.enter_context(lines_above_bar())
 
     def phase(self, name: str, total: int | None = None, done: int = 0) -> None:
-        """Enter phase ``name``; with ``total``, the bar counts cells (``done`` of them already)."""
+        """Enter phase ``name`` (the bar's clock restarts); with ``total``, the bar counts cells (``done`` of them
+        already)."""
         log.info("phase: %s", name)
+        self.bar.reset(total=total)
         if total is not None:
-            self.bar.reset(total=total)
             self.bar.update(done)
         self.bar.bar_format = _COUNTING if total is not None else _PHASE
         self.bar.set_description_str(name)  # set_description would append a second ": "
