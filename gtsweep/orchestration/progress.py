@@ -71,7 +71,8 @@ class _LineAboveBar(DummyTqdmFile):
             self._wrapped.write(type(self._buf[0])().join(self._buf))
             self._buf = []
 
-    # tqdm clears a bar on stderr for a line to stdout when both are sys.stdout / sys.stderr: equal to the stream
+    # tqdm.write clears a bar on stderr before a line to stdout only when it finds both streams among sys.stdout and
+    # sys.stderr, which are these wrappers while the bar shows: a wrapper equals its stream
     def __eq__(self, other):
         return self._wrapped == getattr(other, "_wrapped", other)
 
