@@ -8,7 +8,7 @@ import pandas as pd
 
 from gtsweep.evaluation.transforms import rotation_matrix
 from gtsweep.evaluation.views import rotation_deg
-from gtsweep.report.rotation import PAIRS_ROW, bin_labels, rotation_table, write_rotation
+from gtsweep.report.rotation import PAIRS_ROW, bin_labels, plot_curves, rotation_table, write_rotation
 
 
 def summary(key, detector, matcher="bf_ratio", transform="absolute", experiment="pose"):
@@ -52,3 +52,32 @@ def test_no_table_without_absolute_pose_cells(tmp_path):
     assert rotation_table(summaries, views) is None
     assert write_rotation(summaries, views, tmp_path) == [] and not any(tmp_path.iterdir())
     assert np.isnan(rotation_deg(np.full((3, 3), np.nan)))
+
+
+def test_plot_data_counts_bands_and_coinciding_curves():
+    # SIFT and ORB: the same outcome on every pair (one curve, both names); ALIKED: only the first pair.
+    # Pairs per bin: 0-15: 2, 90-105: 2, 165-180: 1, every other bin none.
+    rotation = [5.0, 10.0, 92.0, 104.9, 180.0]
+    views = {"sift": pd.DataFrame({"rotation": rotation, "pose_success": [1.0, 1.0, 1.0, 0.0, 1.0]}),
+             "orb": pd.DataFrame({"rotation": rotation, "pose_success": [1.0, 1.0, 1.0, 0.0, 1.0]}),
+             "aliked": pd.DataFrame({"rotation": rotation, "pose_success": [1.0, 0.0, 0.0, 0.0, 0.0]})}
+    table = rotation_table([summary("sift", "sift"), summary("orb", "orb"), summary("aliked", "aliked_n16")], views)
+    curves, pairs = plot_curves(table)
+    assert pairs.to_dict() == {**dict.fromkeys(bin_labels(), 0), "0-15": 2, "90-105": 2, "165-180": 1}
+    shared = "2 cells, same outcome:\nSIFT + SIFT\nORB + ORB"
+    assert list(dict.fromkeys(curves["curve"])) == [shared, "ALIKED-n16 + ALIKED-n16"]
+    # Wilson 95 % (z = 1.959964): 2/2 -> [0.342380, 1]; 1/2 -> [0.094531, 0.905469]; 1/1 -> [0.206549, 1];
+    # 0/2 -> [0, 0.657620]; 0/1 -> [0, 0.793451]. The two curves sit 2 degrees either side of the bin's centre.
+    by_bin = curves.set_index(["curve", "bin"])
+    expected = {(shared, "0-15"): (6.5, 1.0, 0.342380, 1.0), (shared, "90-105"): (96.5, 0.5, 0.094531, 0.905469),
+                (shared, "165-180"): (171.5, 1.0, 0.206549, 1.0),
+                ("ALIKED-n16 + ALIKED-n16", "0-15"): (8.5, 0.5, 0.094531, 0.905469),
+                ("ALIKED-n16 + ALIKED-n16", "90-105"): (98.5, 0.0, 0.0, 0.657620),
+                ("ALIKED-n16 + ALIKED-n16", "165-180"): (173.5, 0.0, 0.0, 0.793451)}
+    for key, numbers in expected.items():
+        assert np.allclose(by_bin.loc[key, ["x", "rate", "ci_low", "ci_high"]].to_numpy(float), numbers,
+                           atol=5e-7), key
+    empty = by_bin.loc[("ALIKED-n16 + ALIKED-n16", "30-45")]
+    assert empty["x"] == 38.5 and np.isnan(empty[["rate", "ci_low", "ci_high"]].to_numpy(float)).all()
+    entry = next(v for v in table.values if v["row"] == "ORB + ORB" and v["column"] == "90-105")
+    assert entry["pairs"] == 2 and entry["ours"] == 0.5 and round(entry["ci_low"], 6) == 0.094531

@@ -143,7 +143,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
              len(not_applicable))
 
     def start_evaluating() -> None:  # the executor is up: NA cells are written, the bar counts every cell
-        progress.phase("evaluate", total=len(grid.cells), done=resumed)
+        progress.phase("evaluate cells", total=len(grid.cells), done=resumed)
         for cell in not_applicable:
             finish(cell, {"na": cell.na_reason})
 
