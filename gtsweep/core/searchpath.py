@@ -10,6 +10,7 @@ tuned method files only, ``<group>/tuned/<name>.yaml`` of a method group, never 
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 
 from hydra.core.object_type import ObjectType
@@ -69,6 +70,60 @@ class TunedMethods(ConfigSource):
         return sorted(set(found))
 
 
+#: The option of a method group that stands for every option of the group (``detector=all``).
+ALL = "all"
+
+
+class EveryOption(ConfigSource):
+    """``every://``: the config ``<method group>/all``, whose defaults list selects every option of the group
+    (:func:`options_of`) on the search path it is composed from, so that ``detector=all`` is Hydra's own choice of
+    an option in a single run and in every job of ``-m``. It lists nothing (``all`` is not a file)."""
+
+    @staticmethod
+    def scheme() -> str:
+        return "every"
+
+    def available(self) -> bool:
+        return True
+
+    def is_group(self, config_path: str) -> bool:
+        return False
+
+    def is_config(self, config_path: str) -> bool:
+        group, _, name = config_path.removesuffix(".yaml").strip("/").partition("/")
+        return group in METHOD_GROUPS and name == ALL
+
+    def list(self, config_path: str, results_filter: ObjectType | None) -> list[str]:
+        return []
+
+    def load_config(self, config_path: str) -> ConfigResult:
+        from omegaconf import OmegaConf
+
+        if not self.is_config(config_path):
+            raise ConfigLoadError(f"Config not found : {config_path} in {self.full_path()}")
+        group = config_path.strip("/").partition("/")[0]
+        every = options_of(Configs.of(s for s in _searched_with(self) if s is not self), group)
+        return ConfigResult(config=OmegaConf.create({"defaults": every}), path=self.full_path(),
+                            provider=self.provider, header={"package": None})
+
+
+def _searched_with(source: ConfigSource) -> list[ConfigSource]:
+    """The sources of the config repository that asks ``source`` for a config (Hydra hands a source no reference
+    to its siblings; the repository is the caller's ``self``, a few frames up)."""
+    frame = sys._getframe(1)
+    while frame is not None:
+        sources = getattr(frame.f_locals.get("self"), "sources", None)
+        if isinstance(sources, list) and any(s is source for s in sources):
+            return sources
+        frame = frame.f_back
+    raise ConfigLoadError(f"{source.full_path()}: no config repository asked for it")
+
+
+def options_of(configs: "Configs", group: str) -> list[str]:
+    """What ``group=all`` and ``group=glob(...)`` choose from: the options of ``group`` on the search path."""
+    return [name for name in configs.options(group) if name != ALL]
+
+
 def stray_tuned_files(root: str | os.PathLike) -> list[str]:
     """The YAML files under ``root`` (the working directory's ``./tuned``) that are not tuned method files
     (``<method group>/tuned/<name>.yaml``): Hydra never sees them, and a config planted there (a preset, a method)
@@ -87,6 +142,7 @@ def stray_tuned_files(root: str | os.PathLike) -> list[str]:
 def register_sources() -> None:
     """Make the ``tuned://`` scheme known to Hydra in this process (the CLI's and every launcher worker's)."""
     Plugins.instance().register(TunedMethods)
+    Plugins.instance().register(EveryOption)
 
 
 class Configs:
@@ -97,6 +153,14 @@ class Configs:
         kinds = {kind.scheme(): kind for kind in Plugins.instance().discover(ConfigSource)}
         self.entries = tuple(entries)
         self.sources = [kinds[entry.split("://")[0]]("gtsweep", entry) for entry in self.entries]
+
+    @classmethod
+    def of(cls, sources) -> "Configs":
+        """The configs of Hydra's own sources (a running composition's)."""
+        found = cls(())
+        found.sources = list(sources)
+        found.entries = tuple(f"{s.scheme()}://{s.path}" for s in found.sources)
+        return found
 
     def _listing(self, path: str, kind: ObjectType) -> set[str]:
         return {name for source in self.sources if source.available() and source.is_group(path)
