@@ -11,7 +11,6 @@ import logging
 import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
@@ -27,13 +26,13 @@ from gtsweep.cli.lifecycle import (
     stop_workers,
 )
 from gtsweep.cli.watchdog import watched
-from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
+from gtsweep.cli.overrides import fail
+from gtsweep.cli.runs import SWEEP_RECORD, command_key
 from gtsweep.cli.schemas import register_schemas
-from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted
-from gtsweep.core.searchpath import configs_of_sources, register_help_resolver, register_sources
+from gtsweep.core.searchpath import register_sources
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
@@ -47,25 +46,18 @@ register_sources()
 register_schemas()  # the method and run-setting schemas the configs compose onto
 
 
-def hydra_main() -> None:
-    """Run the Hydra application on ``sys.argv`` (already checked and expanded by :func:`gtsweep.cli.main`)."""
-    register_help_resolver()
-    _app()
-
-
-@hydra.main(config_path=PRIMARY, config_name=PRIMARY_NAME, version_base=None)
-def _app(cfg: DictConfig) -> None:
+def app(cfg: DictConfig) -> None:
+    """The task function Hydra runs for each job (:func:`gtsweep.cli.main`)."""
     hydra_cfg = HydraConfig.get()
-    keyed_methods(cfg, configs_of_sources(hydra_cfg.runtime.config_sources), hydra_cfg.overrides.task)
     output_dir = Path(hydra_cfg.runtime.output_dir)
+    overrides = list(hydra_cfg.overrides.task)
     try:
         experiment = EXPERIMENTS.get(cfg.experiment.name)
         claim(output_dir)
-        record = {"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:], "overrides": list(hydra_cfg.overrides.task)}
-        write_atomically(output_dir / SWEEP_RECORD, json.dumps(record))
+        write_atomically(output_dir / SWEEP_RECORD, json.dumps({"key": job_key(hydra_cfg), "overrides": overrides}))
     except (GtsweepError, OSError) as e:
         fail(e if isinstance(e, GtsweepError) else f"cannot write the output directory {output_dir}: {e}")
-    log.info("gtsweep %s in %s", " ".join(sys.argv[1:]), output_dir)
+    log.info("gtsweep %s in %s", " ".join(overrides), output_dir)
     with interruptible():
         if experiment.job is not None:  # a job of its own (parameter optimisation)
             _job(experiment, cfg, output_dir)
@@ -142,6 +134,17 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
         if hydra_cfg.mode != RunMode.MULTIRUN:
             sys.exit(1)
         # in a multirun the other jobs still run and are combined; the multirun then exits 1 (gtsweep.cli.multirun)
+
+
+def job_key(hydra_cfg) -> str:
+    """The command a job belongs to (:func:`gtsweep.cli.runs.command_key`): its own, or its multirun's."""
+    from hydra.types import RunMode
+
+    from gtsweep.cli.multirun import multirun_record
+
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        return command_key(hydra_cfg.overrides.task)
+    return multirun_record(Path(hydra_cfg.sweep.dir)).get("key", "")
 
 
 def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:

@@ -31,12 +31,16 @@ from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import Interrupted
 
 LOCK_FILE = ".gtsweep.lock"
+COMMAND: list[str] = []  # the command line of this process's gtsweep.cli.main
 _held: dict = {}  # output directory -> its lock file, held for this process's life
 
 
 def new_dir(base: str) -> str:
     """``base``, or ``base-2``, ``base-3``... : the first that this process creates (an exclusive claim)."""
-    Path(base).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        Path(base).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"cannot write the output directory {base}: {e.strerror or e}") from None
     for n in range(1, 1000):
         candidate = base if n == 1 else f"{base}-{n}"
         try:
@@ -61,22 +65,6 @@ def check_writable(directory: str | os.PathLike) -> None:
             pass
     except OSError as e:
         raise BadInput(f"cannot write the output directory {directory}: {e.strerror or e}") from None
-
-
-def output_root(args: list[str], multirun: bool) -> tuple[str, bool]:
-    """The directory a run will write under and whether it was given: ``hydra.run.dir``/``hydra.sweep.dir``, else
-    the default root (``outputs`` or ``multirun``)."""
-    key = "hydra.sweep.dir=" if multirun else "hydra.run.dir="
-    explicit = [a[len(key):] for a in args if a.startswith(key)]
-    return (explicit[-1], True) if explicit else ("multirun" if multirun else "outputs", False)
-
-
-def prepare_output(args: list[str], multirun: bool) -> None:
-    """Before Hydra writes anything: the output directory must be writable, and a given one must be free."""
-    root, explicit = output_root(args, multirun)
-    check_writable(root)
-    if explicit:
-        claim(Path(root))
 
 
 def claim(output_dir: Path) -> None:
@@ -231,13 +219,13 @@ def _open_files(process: Path) -> list[bytes]:
 
 
 def resume_command() -> str:
-    """The command that continues this run: the user's command as typed (``sys.orig_argv``, which gtsweep's
-    rewrite of ``sys.argv`` leaves alone) with ``resume=true``."""
+    """The command that continues this run: the user's command as typed (``sys.orig_argv``) with
+    ``resume=true``."""
     typed = list(getattr(sys, "orig_argv", []))
     if typed[1:3] == ["-m", "gtsweep"]:
         args = typed[3:]
-    else:  # called from Python (tests, scripts): the arguments Hydra got
-        args = [a for a in sys.argv[1:] if not a.startswith("hydra.searchpath=")]
+    else:  # called from Python (tests, scripts): the command line gtsweep's main() got
+        args = list(COMMAND)
     return shlex.join(["python", "-m", "gtsweep", *[a for a in args if not a.startswith("resume=")], "resume=true"])
 
 

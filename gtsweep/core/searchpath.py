@@ -13,6 +13,7 @@ import os
 import sys
 import warnings
 
+from hydra._internal.core_plugins.file_config_source import FileConfigSource
 from hydra.core.object_type import ObjectType
 from hydra.core.plugins import Plugins
 from hydra.plugins.config_source import ConfigLoadError, ConfigResult, ConfigSource
@@ -139,20 +140,52 @@ def stray_tuned_files(root: str | os.PathLike) -> list[str]:
     return sorted(found)
 
 
+class DeclaredMethods(FileConfigSource):
+    """``file://`` as Hydra reads it, but a method declared in YAML (``<method group>/<name>.yaml`` holding
+    ``factory:``, ``params:``..., not keyed by its name) is keyed by its option name when loaded: its keys land at
+    ``<group>.<name>``, beside the package's methods, and Hydra checks overrides of it like any other."""
+
+    def load_config(self, config_path: str) -> ConfigResult:
+        return keyed_by_name(super().load_config(config_path), config_path)
+
+
+def keyed_by_name(result: ConfigResult, config_path: str) -> ConfigResult:
+    """``result`` with its content under its option name if it is a method group's option that declares a method."""
+    from omegaconf import OmegaConf
+
+    parts = config_path.removesuffix(".yaml").strip("/").split("/")
+    if len(parts) != 2 or parts[0] not in METHOD_GROUPS or result.header.get("package"):
+        return result
+    content = OmegaConf.to_container(result.config) if OmegaConf.is_dict(result.config) else None
+    defaults = content.pop("defaults", None) if content else None
+    if not content or set(content) == {parts[1]}:
+        return result
+    result.config = OmegaConf.create({**({"defaults": defaults} if defaults is not None else {}),
+                                      parts[1]: content})
+    return result
+
+
 def register_sources() -> None:
-    """Make the ``tuned://`` scheme known to Hydra in this process (the CLI's and every launcher worker's)."""
+    """Make gtsweep's config sources known to Hydra in this process (the CLI's and every launcher worker's):
+    ``tuned://``, ``every://`` and ``file://`` with declared methods keyed by name (it takes the place of Hydra's
+    own reader of ``file://``, which Hydra's registry keeps one of per scheme)."""
+    from hydra._internal.sources_registry import SourcesRegistry
+
     Plugins.instance().register(TunedMethods)
     Plugins.instance().register(EveryOption)
+    SourcesRegistry.instance().types[DeclaredMethods.scheme()] = DeclaredMethods
 
 
 class Configs:
     """The config files on a search path (``file://dir``, ``pkg://package``, ``tuned://dir`` entries, in order)."""
 
     def __init__(self, entries):
+        from hydra._internal.sources_registry import SourcesRegistry
+
         register_sources()
-        kinds = {kind.scheme(): kind for kind in Plugins.instance().discover(ConfigSource)}
         self.entries = tuple(entries)
-        self.sources = [kinds[entry.split("://")[0]]("gtsweep", entry) for entry in self.entries]
+        self.sources = [SourcesRegistry.instance().resolve(entry.split("://")[0])("gtsweep", entry)
+                        for entry in self.entries]
 
     @classmethod
     def of(cls, sources) -> "Configs":
