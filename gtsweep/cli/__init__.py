@@ -17,6 +17,7 @@ from gtsweep.cli import completion, lifecycle
 from gtsweep.cli.overrides import fail, register_all
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, hydra_parser
 from gtsweep.core.errors import GtsweepError
+from gtsweep.core.interrupts import Interrupted, interruptible
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
 from gtsweep.core.searchpath import stray_tuned_files
 
@@ -60,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(e)
     parsed = hydra_args(args)
     register_all()
-    with lifecycle.interruptible(), hydra_errors_raised():  # Ctrl-C while Hydra composes or imports: one line too
+    with interruptible(), hydra_errors_raised():  # Ctrl-C while Hydra composes or imports: one line too
         try:
             from gtsweep.cli.app import app
 
@@ -74,5 +75,5 @@ def main(argv: list[str] | None = None) -> None:
             if not str(e).startswith(("Only one of", "The --resolve flag")):
                 raise
             fail(GtsweepError(str(e)))
-        except lifecycle.Interrupted as e:
+        except Interrupted as e:
             lifecycle.exit_interrupted(e, "no cell has finished")

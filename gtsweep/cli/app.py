@@ -19,11 +19,8 @@ from gtsweep.cli.lifecycle import (
     exit_failed,
     exit_interrupted,
     failure_cause,
-    interruptible,
-    interruption,
     register_resolvers,
     resume_command,
-    stop_workers,
 )
 from gtsweep.cli.watchdog import watched
 from gtsweep.cli.overrides import fail
@@ -31,10 +28,11 @@ from gtsweep.cli.runs import SWEEP_RECORD, command_key
 from gtsweep.cli.schemas import register_schemas
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.interrupts import Interrupted
+from gtsweep.core.interrupts import Interrupted, interruptible, interruption
 from gtsweep.core.searchpath import register_sources
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
+from gtsweep.orchestration.cluster import stop_workers
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.report.samples import load_views

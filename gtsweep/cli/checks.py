@@ -10,7 +10,7 @@ for every job of ``-m`` before any runs (:mod:`gtsweep.cli.sweeper`), by the run
 from __future__ import annotations
 
 from gtsweep.cli.search import GRID_GROUPS
-from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, nearest
+from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, causes, nearest
 from gtsweep.core.searchpath import Configs
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
@@ -42,15 +42,6 @@ def check_job(cfg, overrides, found: Configs) -> None:
 def not_selected(group: str, name: str, selected) -> BadInput:
     return BadInput(f"{group} '{name}' is not selected (selected: {', '.join(sorted(selected)) or 'none'}); add it, "
                     f"e.g. {group}=[{name},...]")
-
-
-def causes(error: BaseException):
-    """``error`` and the exceptions behind it."""
-    seen = set()
-    while error is not None and id(error) not in seen:
-        seen.add(id(error))
-        yield error
-        error = error.__cause__ or error.__context__
 
 
 def translate(error: Exception, overrides, found: Configs) -> GtsweepError:

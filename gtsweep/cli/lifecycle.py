@@ -12,21 +12,16 @@ import atexit
 import contextlib
 import logging
 import os
-import re
 import shlex
-import signal
 import sys
 import tempfile
-import threading
-import time
 import traceback
 from pathlib import Path
-from typing import Iterator, NoReturn
+from typing import NoReturn
 
 from filelock import FileLock, Timeout
 from omegaconf import OmegaConf
 
-from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import Interrupted
 
@@ -81,68 +76,15 @@ def claim(output_dir: Path) -> None:
     _held[key] = lock
 
 
-@contextlib.contextmanager
-def interruptible() -> Iterator[None]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` (once: later signals are ignored while it cleans up)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {s: signal.getsignal(s) for s in interrupts.SIGNALS}
-    for s in interrupts.SIGNALS:
-        signal.signal(s, interrupts.on_signal)
-    try:
-        yield
-    finally:
-        for s, old in previous.items():
-            signal.signal(s, old)
-        interrupts.clear()
-
-
-def interruption(error: BaseException) -> Interrupted | None:
-    """The :class:`Interrupted` behind ``error``: Ray's compiled code turns an exception raised by a signal
-    handler during ``ray.wait`` into a ``SystemError`` caused by it."""
-    seen = set()
-    while error is not None and id(error) not in seen:
-        if isinstance(error, Interrupted):
-            return error
-        seen.add(id(error))
-        error = error.__cause__ or error.__context__
-    return None
-
-
-def stop_workers() -> None:
-    """Shut down Ray if this process started or joined it, then end Ray's processes of this command that outlived
-    it (a Ctrl-C that reaches the whole process group while Ray starts can kill the raylet before its agents).
-    A raylet can still be starting an agent while it is ended, so the search repeats until it finds nothing."""
-    ray = sys.modules.get("ray")
-    if ray is None:
-        return
-    if ray.is_initialized():
-        with contextlib.suppress(Exception):
-            ray.shutdown()
-    _stopped["ray"] = True
-    ray_dir = os.path.dirname(getattr(ray, "__file__", None) or "") or None
-    for _ in range(STOP_ROUNDS):
-        leftovers = leftover_ray_processes(ray_dir=ray_dir)
-        if not leftovers:
-            return
-        for pid in leftovers:
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGKILL)
-        time.sleep(STOP_PAUSE_S)
-
-
-STOP_ROUNDS, STOP_PAUSE_S = 10, 0.2
-_stopped = {"ray": False}  # whether stop_workers ended this process's Ray
-
-
 def leave(code: int | str | None) -> NoReturn:
     """End the process with a :class:`SystemExit`'s ``code``. After :func:`stop_workers` ended Ray, the process
     skips C's exit handlers: once its raylet and GCS are gone (a Ctrl-C to the whole process group reaches them
     too), Ray's core-worker exit handler (``CoreWorkerProcess::HandleAtExit``, Ray 2.60) waits for the dead GCS and
     then crashes the process (SIGSEGV: exit status -11 instead of 130). Python's own exit work (atexit functions,
     logging, the standard streams) is done first."""
-    if not _stopped["ray"]:
+    from gtsweep.orchestration.cluster import ray_stopped
+
+    if not ray_stopped():
         sys.exit(code)
     if isinstance(code, str):  # sys.exit("message"): Python prints it
         print(code, file=sys.stderr)
@@ -152,72 +94,6 @@ def leave(code: int | str | None) -> NoReturn:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(code if isinstance(code, int) else (0 if code is None else 1))
-#: Ray names a node's session after the process that starts it: ``session_<date>_<time>_<microseconds>_<pid>``
-#: (``ray._private.node.Node``); every process of the node names that folder in its command line or its open files.
-SESSION = re.compile(rb"session_\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d_\d+_(\d+)(?![\d])")
-
-
-def leftover_ray_processes(proc: Path = Path("/proc"), ray_dir: str | None = None) -> list[int]:
-    """Ray's processes that this command started, and nothing else's (Linux; elsewhere none): a Ray program
-    (``ray::...``, raylet, GCS, or a script of Ray's package in ``ray_dir``) that descends from this process, or
-    that names the Ray session this process started (by its pid) and began after it. An orphaned agent is found
-    whatever its process group; a cluster the user started with ``ray start`` (another session) or another
-    command's Ray is never matched."""
-    me = os.getpid()
-    table = _processes(proc, ray_dir)
-    if me not in table:
-        return []
-    born = table[me]["start"]
-
-    def descends(pid: int) -> bool:
-        seen = set()
-        while pid not in (0, 1) and pid not in seen:
-            seen.add(pid)
-            pid = table.get(pid, {}).get("ppid", 0)
-            if pid == me:
-                return True
-        return False
-
-    def names_my_session(pid: int) -> bool:
-        texts = [table[pid]["cmdline"], *_open_files(proc / str(pid))]
-        return table[pid]["start"] >= born and any(
-            int(m.group(1)) == me for text in texts for m in SESSION.finditer(text))
-
-    return sorted(pid for pid, info in table.items()
-                  if pid != me and info["ray"] and (descends(pid) or names_my_session(pid)))
-
-
-def _processes(proc: Path, ray_dir: str | None) -> dict[int, dict]:
-    """pid -> parent, start time (clock ticks after boot), command line and whether it is a Ray program."""
-    marker = os.fsencode(ray_dir.rstrip("/") + "/") if ray_dir else None
-    table = {}
-    for entry in proc.glob("[0-9]*"):
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except (OSError, ValueError, IndexError):
-            continue
-        program = argv[0]
-        ray = program.startswith(b"ray::") or os.path.basename(program) in (b"raylet", b"gcs_server") or (
-            marker is not None and any(arg.startswith(marker) for arg in argv[:3]))
-        try:
-            table[int(entry.name)] = {"ppid": int(fields[1]), "start": int(fields[19]), "ray": ray,
-                                      "cmdline": b" ".join(argv)}
-        except (ValueError, IndexError):
-            continue
-    return table
-
-
-def _open_files(process: Path) -> list[bytes]:
-    """Where ``process``'s file descriptors point (its logs in the Ray session folder); none if not readable."""
-    targets = []
-    with contextlib.suppress(OSError):
-        for fd in (process / "fd").iterdir():
-            with contextlib.suppress(OSError):
-                targets.append(os.fsencode(os.readlink(fd)))
-    return targets
-
-
 def resume_command() -> str:
     """The command that continues this run: the user's command as typed (``sys.orig_argv``) with
     ``resume=true``."""

@@ -50,7 +50,7 @@ def earlier_run(key: str, multirun: bool, root: Path | None = None) -> Path | No
 
 def claimed(config, key: str) -> Path:
     """Resolve and claim the run's directory (``hydra.sweep.dir`` in a multirun): writable, no other run in it."""
-    from gtsweep.cli.checks import causes
+    from gtsweep.core.errors import causes
     from gtsweep.cli.lifecycle import check_writable, claim
 
     try:
