@@ -14,7 +14,8 @@ import os
 import sys
 
 from gtsweep.cli import completion, lifecycle
-from gtsweep.cli.overrides import fail, register_all
+from gtsweep.cli.lifecycle import fail
+from gtsweep.cli.overrides import register_all
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, hydra_parser
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted, interruptible

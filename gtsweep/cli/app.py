@@ -14,34 +14,22 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gtsweep.cli.lifecycle import (
-    claim,
-    exit_failed,
-    exit_interrupted,
-    failure_cause,
-    register_resolvers,
-    resume_command,
-)
-from gtsweep.cli.watchdog import watched
-from gtsweep.cli.overrides import fail
+from gtsweep.cli.lifecycle import claim, fail, resume_command, stop
+from gtsweep.cli.overrides import register_all
 from gtsweep.cli.runs import SWEEP_RECORD, command_key
-from gtsweep.cli.schemas import register_schemas
+from gtsweep.cli.watchdog import watched
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.interrupts import Interrupted, interruptible, interruption
-from gtsweep.core.searchpath import register_sources
+from gtsweep.core.interrupts import Interrupted, interruptible
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.orchestration.cluster import stop_workers
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import scale_from_config
 
 log = logging.getLogger(__name__)
-register_resolvers()  # also in processes that only import this module (Hydra's joblib launcher workers)
-register_sources()
-register_schemas()  # the method and run-setting schemas the configs compose onto
+register_all()  # also in processes that only import this module (Hydra's joblib launcher workers)
 
 
 def app(cfg: DictConfig) -> None:
@@ -59,7 +47,7 @@ def app(cfg: DictConfig) -> None:
     with interruptible():
         if experiment.job is not None:  # a job of its own (parameter optimisation)
             _job(experiment, cfg, output_dir)
-        elif cfg.runner.get("backend", "ray") == "ray":
+        elif cfg.runner.backend == "ray":
             with watched(output_dir, resume_command()):  # Ray may end this process from its compiled code
                 _sweep(experiment, cfg, hydra_cfg, output_dir)
         else:
@@ -69,15 +57,8 @@ def app(cfg: DictConfig) -> None:
 def _job(experiment: Experiment, cfg: DictConfig, output_dir: Path) -> None:
     try:
         experiment.job(cfg, output_dir)
-    except GtsweepError as e:
-        stop_workers()
-        fail(e)
     except (Interrupted, Exception) as e:
-        signal = interruption(e)
-        stop_workers()
-        if signal is None:
-            exit_failed(e, "finished trials are kept in the study")
-        exit_interrupted(signal, "finished trials are kept in the study")
+        stop(e, lambda: "finished trials are kept in the study")
 
 
 def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
@@ -102,22 +83,10 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
         tables, files = experiment.report(outcome.summaries, output_dir / "report", options)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
-    except GtsweepError as e:
+    except (Interrupted, Exception) as e:  # bad input, Ctrl-C, or a failure anywhere (disk, store, cluster)
         progress.close()
-        stop_workers()
-        if tracker is not None:
-            tracker.abort(str(e))
-        fail(e)
-    except (Interrupted, Exception) as e:  # Ctrl-C, or a failure anywhere (disk, store, cluster): one line
-        signal = interruption(e)
-        progress.close()
-        stop_workers()
-        marked = tracker.abort(str(signal) if signal else failure_cause(e), "KILLED" if signal else "FAILED") \
-            if tracker is not None else ""
-        kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
-        if signal is None:
-            exit_failed(e, kept, marked)
-        exit_interrupted(signal, kept)
+        stop(e, lambda: f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}",
+             tracker.abort if tracker is not None else None)
     progress.close()
     summary = [experiment.summary(outcome, tables), scale.line(),
                f"report: {len(files)} tables and plots in {output_dir / 'report'}"]

@@ -22,8 +22,8 @@ from typing import NoReturn
 from filelock import FileLock, Timeout
 from omegaconf import OmegaConf
 
-from gtsweep.core.errors import BadInput
-from gtsweep.core.interrupts import Interrupted
+from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.interrupts import Interrupted, interruption
 
 LOCK_FILE = ".gtsweep.lock"
 COMMAND: list[str] = []  # the command line of this process's gtsweep.cli.main
@@ -142,6 +142,31 @@ def exit_failed(error: BaseException, kept: str, marked: str = "") -> None:
 def failure_line(cause: str, kept: str, marked: str = "", resume: str | None = None) -> str:
     """The one line a failed run ends with (also printed by :mod:`gtsweep.cli.watchdog` for a vanished sweep)."""
     return f"gtsweep: error: {cause}; {kept}{marked}; to continue: {resume or resume_command()}"
+
+
+def fail(error: Exception) -> NoReturn:
+    """Bad input: one line, exit code 2."""
+    print(f"gtsweep: error: {error}", file=sys.stderr)
+    sys.exit(2)
+
+
+def stop(error: BaseException, kept, abort=None) -> NoReturn:
+    """End a job that stopped on ``error`` once its workers are stopped: bad input in one line (exit 2), else the
+    cause or the interrupt with what is kept (``kept()``) and how to continue; ``abort(cause[, status])`` marks
+    its MLflow run and says what became of it."""
+    from gtsweep.orchestration.cluster import stop_workers
+
+    signal = interruption(error)
+    stop_workers()
+    if isinstance(error, GtsweepError):
+        if abort is not None:
+            abort(str(error))
+        fail(error)
+    marked = abort(str(signal) if signal else failure_cause(error), "KILLED" if signal else "FAILED") \
+        if abort is not None else ""
+    if signal is None:
+        exit_failed(error, kept(), marked)
+    exit_interrupted(signal, kept())
 
 
 def exit_interrupted(error: Interrupted, kept: str) -> None:

@@ -1,8 +1,7 @@
 """A config as ``python -m gtsweep`` composes it, for scripts, benchmarks and tests (:func:`compose_config`), and
-the one line a mistake ends with (:func:`fail`)."""
+what composing gtsweep's configs needs registered in a process (:func:`register_all`)."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from gtsweep.cli.search import PRIMARY_MODULE, PRIMARY_NAME, configs, user_searchpath, with_searchpath
@@ -42,8 +41,3 @@ def register_all() -> None:
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
     for register in (register_sources, register_resolvers, register_help_resolver, register_schemas):
         register()
-
-
-def fail(error: Exception) -> None:
-    print(f"gtsweep: error: {error}", file=sys.stderr)
-    sys.exit(2)

@@ -91,7 +91,7 @@ class RunDirectory(Callback):
 
     def on_run_start(self, config, **kwargs) -> None:
         from gtsweep.cli.checks import check_job
-        from gtsweep.cli.overrides import fail
+        from gtsweep.cli.lifecycle import fail
         from gtsweep.core.searchpath import configs_of_sources
 
         try:

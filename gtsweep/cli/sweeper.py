@@ -42,7 +42,7 @@ class CheckingSweeper(BasicSweeper):
         from hydra.core.override_parser.overrides_parser import OverridesParser
 
         from gtsweep.cli.multirun import open_multirun_run
-        from gtsweep.cli.overrides import fail
+        from gtsweep.cli.lifecycle import fail
         from gtsweep.cli.runs import start_sweep_dir
 
         found = configs_of_sources(self.config.hydra.runtime.config_sources)
