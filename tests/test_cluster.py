@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from sweep_helpers import cli_env, tiny_overrides
+from sweep_helpers import cli_env, session_ends, tiny_overrides
 
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration.cluster import check_address, cluster_address
@@ -156,3 +156,64 @@ def test_ray_address_joins_the_running_head_and_the_run_records_the_cluster(tmp_
     cluster = result["record"]["cluster"]
     assert cluster == {"backend": "ray", "address": result["expected"], "nodes": 1, "cpus": 1}
     assert f"Ray cluster at {result['expected']}: 1 node(s), 1 CPUs" in done.stderr
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _recorded_cluster() -> str | None:
+    from ray._private.utils import read_ray_address
+
+    return read_ray_address()
+
+
+@pytest.fixture
+def ray_head(tmp_path):
+    """A real head as a user starts it (``ray start --head --node-ip-address=127.0.0.1``, 1 CPU, this Python so
+    that its workers import this checkout), in a session of its own: stopped by its process group afterwards
+    (never ``ray stop``, which would stop every Ray on the machine)."""
+    port = _free_port()
+    head = subprocess.Popen(
+        [sys.executable, "-c", "from ray.scripts.scripts import main; main()", "start", "--head", "--block",
+         "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=1", "--include-dashboard=false",
+         "--disable-usage-stats"], env=cli_env(), cwd=tmp_path, start_new_session=True, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (_recorded_cluster() or "").endswith(f":{port}"):
+            assert head.poll() is None and time.monotonic() < deadline, head.stderr.read()[-2000:]
+            time.sleep(0.5)
+        yield port
+    finally:
+        recorded = _recorded_cluster()
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(head.pid, sig)
+            except ProcessLookupError:
+                break
+            time.sleep(3)
+        head.wait(timeout=30)
+        assert session_ends(head.pid, timeout=10) == []
+        from ray._private.utils import get_ray_address_file
+
+        if recorded and recorded.endswith(f":{port}"):  # the record ray start left: as ray stop removes it
+            Path(get_ray_address_file(None)).unlink(missing_ok=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("auth_mode", [None, "token"])
+def test_ray_address_of_a_local_head_runs_the_sweep_there(tmp_path, ray_head, auth_mode, monkeypatch):
+    """As ``ray.init(address="auto")`` joins this machine's head with its token; with ``RAY_AUTH_MODE=token`` as
+    Ray asks of an explicit address. The head reports its own address (not 127.0.0.1): joining does not refuse."""
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    env = {"RAY_ADDRESS": f"127.0.0.1:{ray_head}", **({"RAY_AUTH_MODE": auth_mode} if auth_mode else {})}
+    run = _cli(tmp_path, "runner.backend=ray", "mlflow.enabled=false", "detector=[orb]", "descriptor=[orb]",
+               "transform=[incremental]", "hydra.run.dir=out", env=env)
+    out, err = run.communicate(timeout=300)
+    assert run.returncode == 0, err[-2000:]
+    cluster = json.loads((tmp_path / "out" / "run.json").read_text())["cluster"]
+    assert cluster["address"].endswith(f":{ray_head}") and (cluster["nodes"], cluster["cpus"]) == (1, 1)
+    assert f"Ray cluster at {cluster['address']}: 1 node(s), 1 CPUs" in err

@@ -82,9 +82,9 @@ def test_user_configs_are_valid_choices(user_conf, tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("node, message", [
-    ({"factory": "cv2.NoSuchDetector_create", "orientation": False}, "factory 'cv2.NoSuchDetector_create': cv2 has "
-                                                                       "no 'NoSuchDetector_create'"),
-    ({"factory": "nomodule.create", "orientation": False}, "factory 'nomodule.create' is outside the allowed modules"),
+    ({"factory": "cv2.NoSuchDetector_create", "orientation": False}, "factory 'cv2.NoSuchDetector_create' is refused (cv2 has no "
+        "constructor 'NoSuchDetector_create')"),
+    ({"factory": "nomodule.create", "orientation": False}, "factory 'nomodule.create' is refused"),
     ({"factory": "cv2.ORB_create", "orientation": False, "colour": True}, "unknown key 'colour'; its capabilities: "
                                                                           "orientation, response"),
     ({"factory": "cv2.ORB_create"}, "declared in YAML, it needs orientation"),

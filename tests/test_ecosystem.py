@@ -11,7 +11,7 @@ import pytest
 
 from gtsweep.core.errors import BadInput
 from gtsweep.optimize.tuned_files import storage_label
-from gtsweep.orchestration import executor
+from gtsweep.orchestration import dashboard, executor
 from gtsweep.report.combine import combine, mean_summary
 from gtsweep.report.tables import sample_note
 from gtsweep.tracking.tags import cell_names, overrides_name
@@ -21,10 +21,10 @@ def test_ray_options_hide_rays_warnings_and_the_dashboard_unless_asked(monkeypat
     options = executor.ray_options({})
     assert options["include_dashboard"] is False and options["logging_level"] == logging.ERROR
     assert executor.ray_options({"ray_log_level": "warning"})["logging_level"] == logging.WARNING
-    monkeypatch.setattr(executor, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
+    monkeypatch.setattr(dashboard, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
     with pytest.raises(BadInput, match=r"runner.dashboard=true needs Ray's dashboard: pip install 'ray\[default\]'"):
         executor.ray_options({"dashboard": True})
-    monkeypatch.setattr(executor, "_dashboard_missing", lambda: None)
+    monkeypatch.setattr(dashboard, "_dashboard_missing", lambda: None)
     assert executor.ray_options({"dashboard": True})["include_dashboard"] is True
 
 
@@ -56,15 +56,19 @@ def _summary(key, seed_value, status="ok", views=9):
             "metrics": {"pose_success": seed_value, "precision": 0.5}}
 
 
-def test_a_multirun_combines_seeds_as_repeats(tmp_path):
+def _two_repeats(tmp_path, key="seed"):
     for job, (seed, value) in enumerate([(0, 0.4), (1, 0.6)]):
         cells = tmp_path / str(job) / "cells"
         cells.mkdir(parents=True)
         summary = _summary("orb__nms__orb__incremental", value)
         (cells / f"{summary['key']}.json").write_text(json.dumps(summary))
         (tmp_path / str(job) / "sweep.json").write_text(json.dumps(
-            {"overrides": [f"seed={seed}", "detector=[orb]", "descriptor=[orb]"]}))
-    files = combine(tmp_path, plots=False)
+            {"overrides": [f"{key}={seed}", "detector=[orb]", "descriptor=[orb]"]}))
+    return combine(tmp_path, plots=False)
+
+
+def test_a_multirun_combines_seeds_as_repeats(tmp_path):
+    files = _two_repeats(tmp_path)
     rows = pd.read_csv(tmp_path / "combined" / "all_results.csv")
     assert sorted(rows["seed"]) == [0, 1] and set(rows["setting"]) == {"all"}
     summary = pd.read_csv(tmp_path / "combined" / "summary.csv").iloc[0]
@@ -74,6 +78,17 @@ def test_a_multirun_combines_seeds_as_repeats(tmp_path):
     assert "0.500 ± 0.141 (2)" in summary and "pose_success (share): mean ± std (n) |" in summary
     table = tmp_path / "combined" / "report" / "table4_incremental.md"
     assert table in files and "| ORB | 0.50 (0.70) |" in table.read_text()  # the mean, beside the paper's
+    assert summary.splitlines()[2] == ("Varied: seed: RANSAC's and the synthetic transforms' draws only, on the same "
+                                       "images and pairs (fixed by dataset.seed; -m dataset.seed=0,1 varies them).")
+
+
+def test_dataset_seeds_are_repeats_that_vary_the_data(tmp_path):
+    _two_repeats(tmp_path, "dataset.seed")
+    rows = pd.read_csv(tmp_path / "combined" / "all_results.csv")
+    assert sorted(rows["seed"]) == [0, 1] and set(rows["setting"]) == {"all"}
+    summary = (tmp_path / "combined" / "summary.md").read_text()
+    assert "0.500 ± 0.141 (2)" in summary
+    assert summary.splitlines()[2] == "Varied: dataset.seed: the images and pairs are drawn anew for each repeat."
 
 
 def test_mean_summary_keeps_failed_repeats_out():

@@ -61,6 +61,7 @@ def _assert_failed_then_resumed(tmp_path: Path, out: Path, result, cause: str) -
     parent = json.loads((out / "mlflow.json").read_text())["parent_run_id"]
     status = {r.info.run_id: r.info.status for r in _runs(tmp_path)}
     assert status[parent] == "FAILED"
+    assert [s for s in status.values() if s == "RUNNING"] == []  # nor is a child being logged left RUNNING
     kept = len(list((out / "cells").glob("*.json")))
     resumed = run_cli(_sweep(tmp_path, out) + ["resume=true"], tmp_path)
     assert resumed.returncode == 0, resumed.stderr

@@ -1,7 +1,7 @@
 """The house rules, checked from the source: layers import only downward, no import cycle, no module over ~400 lines.
 
 Layers, lowest first (README, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` < ``orchestration`` <
-``tracking`` < ``report`` < ``optimize`` < ``experiments`` < ``cli``; a package's ``__main__`` is an entry point
+``tracking`` < ``report`` < ``reproduction`` < ``optimize`` < ``experiments`` < ``cli``; a package's ``__main__`` is an entry point
 (nothing imports it) and may use any layer. The science (core, stages, evaluation, datasets) never imports
 the orchestration, tracking, report, optimisation or command-line layers. Lazy (function-level) imports count.
 """
@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gtsweep"
-LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "optimize", "experiments",
-          "cli"]
+LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "reproduction", "optimize",
+          "experiments", "cli", "install"]  # install: the learned methods' installer, an entry point
 SCIENCE = {"core", "stages", "evaluation", "datasets"}
 MAX_LINES = 400
 

@@ -74,7 +74,7 @@ def test_report_of_a_localization_run_rebuilt_from_mlflow(tmp_path, monkeypatch,
     tracker.log_cell(cells[0], ok)
     tracker.log_cell(cells[1], {"key": cells[1].key, "hash": "h", "status": "na", "experiment": "localization",
                                 "methods": cells[1].methods, "reason": "not applicable"})
-    from gtsweep.tracking.sweep import summaries_from_mlflow
+    from gtsweep.tracking.readback import summaries_from_mlflow
 
     rebuilt = {s["key"]: s for s in summaries_from_mlflow(tracker.parent_id, uri)}
     assert rebuilt[cells[0].key]["n_views"] == 4 and "n_views" not in rebuilt[cells[1].key]

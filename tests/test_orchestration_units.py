@@ -141,12 +141,14 @@ def test_resume_finds_the_newest_run_of_the_same_command(tmp_path):
     run = tmp_path / "outputs" / "2026-01-01" / "10-00-00"
     run.mkdir(parents=True)
     (run / runs.SWEEP_RECORD).write_text(json.dumps({"key": runs.command_key(["detector=[sift]"])}))
+    (run / "mlflow.json").write_text("{}")  # a run that started (one that never did is passed over)
     assert runs.command_key(["detector=[sift]", "resume=true"]) == runs.command_key(["detector=[sift]"])
     assert runs.earlier_run(runs.command_key(["detector=[sift]"]), False, tmp_path) == run
     assert runs.earlier_run(runs.command_key(["detector=[orb]"]), False, tmp_path) is None
     sweep = tmp_path / "multirun" / "2026-01-01" / "10-00-00"
-    (sweep / "0").mkdir(parents=True)  # a multirun recorded before the multirun itself held the key: its job's
+    (sweep / "0").mkdir(parents=True)  # a multirun's jobs record its command's key
     (sweep / "0" / runs.SWEEP_RECORD).write_text(json.dumps({"key": runs.command_key(["seed=0,1"])}))
+    (sweep / "0" / "mlflow.json").write_text("{}")
     assert runs.earlier_run(runs.command_key(["seed=0,1", "resume=true"]), True, tmp_path) == sweep
 
 

@@ -1,5 +1,6 @@
-"""Configs are data (issue 28, item 1): a method's ``factory:`` resolves only in OpenCV, gtsweep and the modules the
-user names (``plugins``); anything else is one line, exit 2, before the module is imported."""
+"""Configs are data: a method's ``factory:`` is the exact name of a constructor of OpenCV, gtsweep or a plug-in the user
+names on the command line (``plugins``); anything else is one line, exit 2, before the module is imported. (The
+attacker's table is tests/test_factory_bypass.py.)"""
 from __future__ import annotations
 
 import os
@@ -10,13 +11,15 @@ from sweep_helpers import cli_env, run_cli, tiny_overrides
 
 from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput
-from gtsweep.core.registry import import_dotted
+from gtsweep.core.factories import resolve
 
 #: A module that leaves a mark when imported, and a "detector" factory that leaves another when called.
 PLANTED_MODULE = """
 from pathlib import Path
+from gtsweep.core.plugins import constructor
 Path("IMPORTED").write_text("yes")
 
+@constructor
 def create(**params):
     Path("CALLED").write_text("yes")
     import cv2
@@ -53,10 +56,11 @@ def test_a_factory_outside_the_allow_list_is_refused_before_import(monkeypatch, 
     monkeypatch.chdir(tmp_path)
     monkeypatch.syspath_prepend(str(_plant(tmp_path, "markmod.create").parent.parent.parent / "plugin_dir"))
     for path in ("markmod.create", "subprocess.Popen", "os.system", "builtins.eval", "cv2x.thing"):
-        with pytest.raises(BadInput, match=f"factory '{path}' is outside the allowed modules"):
-            import_dotted(path, "detector 'planted'")
+        with pytest.raises(BadInput, match=f"factory '{path}' is refused"):
+            resolve(path, "detector 'planted'")
     assert not (tmp_path / "IMPORTED").exists()
-    assert import_dotted("cv2.ORB_create", "detector 'mine'").__name__ == "ORB_create"
+    assert resolve("cv2.ORB_create", "detector 'mine'").__name__ == "ORB_create"
+    assert resolve("cv2.xfeatures2d.StarDetector_create", "detector 'mine'").__name__ == "StarDetector_create"
 
 
 def test_plugins_must_be_module_names():
@@ -99,7 +103,7 @@ def test_an_explicit_tuned_file_with_a_foreign_factory_is_refused(tmp_path):
     _plant(tmp_path, "markmod.create", "tuned/detector/tuned/planted.yaml")
     result = _run(tmp_path, "detector=[tuned/planted]", *tiny_overrides(tmp_path, *FAST))
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
-    assert "outside the allowed modules" in result.stderr
+    assert "tuned/detector/tuned/planted.yaml: detector 'planted' is no method of the package" in result.stderr
     assert not (tmp_path / "IMPORTED").exists() and not (tmp_path / "CALLED").exists()
 
 
@@ -130,7 +134,7 @@ def test_opencv_factories_and_named_plugins_run(tmp_path):
     assert (tmp_path / "CALLED").exists()
     (tmp_path / "CALLED").unlink()
     (configs / "sweeps").mkdir()
-    (configs / "sweeps/marked.yaml").write_text(PRESET)  # the user's own preset, in the config dir they pass
+    (configs / "sweeps/marked.yaml").write_text(PRESET)  # a plug-in named in a file, even of the user's config dir
     in_dir = _run(tmp_path, "--config-dir", str(configs), "sweeps=marked", *tiny_overrides(tmp_path, *FAST))
-    assert in_dir.returncode == 0, in_dir.stderr
-    assert (tmp_path / "CALLED").exists()
+    assert in_dir.returncode == 2 and "plugins are named on the command line only" in in_dir.stderr, in_dir.stderr
+    assert not (tmp_path / "CALLED").exists()

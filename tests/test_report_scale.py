@@ -4,7 +4,7 @@ import pytest
 import yaml
 from report_fakes import fake_cell
 
-from gtsweep.report.findings import check_findings, survey_variant
+from gtsweep.reproduction.findings import check_findings, survey_variant
 from gtsweep.experiments.report_command import main
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import Scale, load_scale, scale_from_config
@@ -27,9 +27,15 @@ def test_scale_line_in_mm_hand_worked():
     # Micro-GPS' loader has no px_per_mm in its config: its camera's scale and view size
     micro = scale_from_config({"dataset": {"loader": "microgps"}})
     assert micro.known and "1288×964 px view = 206×154 mm" in micro.line()
-    # nothing recorded: Micro-GPS' scale, and the line says it is assumed
-    assert Scale().line(detection=False) == ("Scale (6.25 px/mm, assumed: Micro-GPS' scale (the run does not record "
-                                             "its data set's)): success radius 30 px = 4.8 mm.")
+    # nothing recorded (one's own data without dataset.px_per_mm): pixels only, and the line names the key
+    assert Scale().line(detection=False) == ("Scale (pixels only: the data set gives no dataset.px_per_mm): success "
+                                             "radius 30 px.")
+    own = scale_from_config({**SURVEY_CONFIG, "dataset": {"loader": "csv", "px_per_mm": None,
+                                                          "view_size": [320, 240]}})
+    assert own.line() == ("Scale (pixels only: the data set gives no dataset.px_per_mm): success radius 30 px; keypoint "
+                          "budget N = 1000 and < N KPs threshold 100 keypoints per 320×240 px view.")
+    assert scale_from_config({**SURVEY_CONFIG, "dataset": {"loader": "csv", "px_per_mm": 20}}).line(
+        detection=False) == "Scale (20 px/mm, the data set's): success radius 30 px = 1.5 mm."
 
 
 def _variant_run(directory):
@@ -88,7 +94,7 @@ def test_report_states_the_scale_under_the_tables_and_in_the_footer(tmp_path, ca
 
 
 def test_reproduction_document_carries_the_scale_and_the_variant(tmp_path):
-    from gtsweep.report import reproduce
+    from gtsweep.reproduction import command as reproduce
 
     output = tmp_path / "work" / "table4_incremental"
     output.mkdir(parents=True)

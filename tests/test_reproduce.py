@@ -4,7 +4,7 @@ import pandas as pd
 import pytest
 from report_fakes import fake_cell
 
-from gtsweep.report.findings import FINDINGS, check_findings
+from gtsweep.reproduction.findings import FINDINGS, check_findings
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries, paper
 
@@ -122,7 +122,7 @@ def test_each_check_tolerates_a_missing_preset(text):
 def test_document_writer_on_fake_runs(tmp_path):
     """write_document: every finding with its verdict, test and numbers; every table with the entries tied with
     its best (here two of three Table 4 pairings are indistinguishable from the best, one is clearly worse)."""
-    from gtsweep.report import reproduce
+    from gtsweep.reproduction import command as reproduce
 
     output = tmp_path / "work" / "table4_incremental"
     fake_cell(output, "censure", "brief", "incremental", [1] * 20)
@@ -149,7 +149,7 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     from sweep_helpers import compose_config, tiny_overrides
 
     from gtsweep.orchestration.skeleton import run_sweep
-    from gtsweep.report import reproduce
+    from gtsweep.reproduction import command as reproduce
 
     work, docs = tmp_path / "work", tmp_path / "docs"
     output = work / "table4_incremental"
@@ -180,7 +180,7 @@ def test_an_unfinished_reproduction_gives_an_interim_document(tmp_path):
     as interim, each finding judged at its last look and marked still open below its full count."""
     import json
 
-    from gtsweep.report import reproduce
+    from gtsweep.reproduction import command as reproduce
 
     work, docs = tmp_path / "work", tmp_path / "docs"
     output = work / "round1" / "table4_incremental"

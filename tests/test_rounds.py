@@ -1,14 +1,14 @@
-"""Rounds of --size decide run only the cells the undecided findings read (gtsweep/orchestration/preset_runs.py):
+"""Rounds of --size decide run only the cells the undecided findings read (gtsweep/reproduction/rounds.py):
 the overrides that cut a preset's grid to them, and the rounds with the preset runs replaced by a fake that writes
 cell files (no gtsweep process)."""
 import json
 
 import pandas as pd
 
-from gtsweep.orchestration import preset_runs
-from gtsweep.orchestration.preset_runs import restriction, run_rounds
-from gtsweep.report.findings import FINDINGS
-from gtsweep.report.sequential import needed_cells
+from gtsweep.reproduction import rounds as preset_runs
+from gtsweep.reproduction.rounds import restriction, run_rounds
+from gtsweep.reproduction.findings import FINDINGS
+from gtsweep.reproduction.sequential import needed_cells
 
 
 def _cell(detector, selector="nms", descriptor=None, transform="absolute"):

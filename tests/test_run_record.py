@@ -1,4 +1,4 @@
-"""An interrupted reproduction resumes (gtsweep/orchestration/run_record.py): finished preset runs are kept, an
+"""An interrupted reproduction resumes (gtsweep/reproduction/run_record.py): finished preset runs are kept, an
 interrupted one runs again in its own output (the sweep keeps its finished cells), its wall time includes the cut
 attempts, and a record of another plan is refused."""
 import json
@@ -11,8 +11,8 @@ import pytest
 
 from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import Interrupted
-from gtsweep.orchestration import preset_runs
-from gtsweep.orchestration.run_record import RunRecord
+from gtsweep.reproduction import rounds as preset_runs
+from gtsweep.reproduction.run_record import RunRecord
 
 PLAN = {"size": "decide", "presets": ["table4_incremental"], "alpha": 0.05, "tuned": "abc"}
 
@@ -180,7 +180,7 @@ def test_stopping_a_preset_run_lets_it_finish_its_clean_up_or_kills_it_after_the
 
 def test_the_command_resumes_its_own_plan_refuses_another_and_starts_fresh_when_asked(tmp_path, monkeypatch,
                                                                                     capsys):
-    from gtsweep.report import reproduce
+    from gtsweep.reproduction import command as reproduce
 
     ran, stop_at = [], {"preset": "table5_absolute"}
 

@@ -17,7 +17,8 @@ from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summarize, summary_table
 from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.report.output import write_report
-from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow
+from gtsweep.tracking.readback import summaries_from_mlflow
+from gtsweep.tracking.sweep import SweepTracker
 
 NAN = math.nan
 

@@ -7,11 +7,11 @@ import pytest
 
 from gtsweep.evaluation.statistics import Comparison
 from gtsweep.evaluation.verdicts import BEATS, Claim
-from gtsweep.orchestration.preset_runs import run_rounds
-from gtsweep.report.findings import Hypothesis
+from gtsweep.reproduction.rounds import run_rounds
+from gtsweep.reproduction.findings import Hypothesis
 from gtsweep.report.pools import cells_where, pairings
 from gtsweep.report.samples import matrices
-from gtsweep.report.sequential import Sequential
+from gtsweep.reproduction.sequential import Sequential
 
 TINY = ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "runner.backend=serial",
         "detector=[censure]", "descriptor=[brief,orb]", "selector=[nms]"]
@@ -62,7 +62,7 @@ def test_rounds_run_only_the_presets_of_undecided_findings(tmp_path, existing_st
     assert (runs[2]["items_evaluated"], runs[2]["items_reused"]) == (2, 4)
     assert len(list((tmp_path / "round2" / "table4_incremental" / "cells").glob("*.json"))) == 2  # orb carried
     # the document: each finding with the round, count per texture and level of its verdict; compute spent
-    from gtsweep.report.reproduce import write_document
+    from gtsweep.reproduction.command import write_document
 
     text = write_document(runs, "decide", tmp_path / "docs", 0.05, sequential).read_text()
     assert "| equal at once | equivalent | round 1, 2, " in text

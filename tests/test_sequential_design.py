@@ -8,9 +8,9 @@ import pytest
 
 from gtsweep.evaluation.statistics import Comparison
 from gtsweep.evaluation.verdicts import BEATS, Claim
-from gtsweep.report import sequential
-from gtsweep.report.findings import Hypothesis
-from gtsweep.report.sequential import Sequential
+from gtsweep.reproduction import sequential
+from gtsweep.reproduction.findings import Hypothesis
+from gtsweep.reproduction.sequential import Sequential
 
 CELLS = pd.DataFrame([{"key": "censure__nms__brief__incremental", "detector": "censure", "selector": "nms",
                        "descriptor": "brief", "transform": "incremental", "status": "ok"}])

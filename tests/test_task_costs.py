@@ -4,7 +4,7 @@ import json
 import pandas as pd
 import pytest
 
-from gtsweep.orchestration import preset_runs, task_costs
+from gtsweep.reproduction import rounds as preset_runs, task_costs
 
 
 def _cell(out, descriptor, rows, detector="orb"):

@@ -71,6 +71,8 @@ def test_runs_read_as_the_ui_expects(sweep_store):
     names = {r.data.tags["gtsweep.cell"]: r.info.run_name for r in children}
     assert names["akaze__nms__brief__incremental"] == "akaze·brief·inc · test-run"  # the cell, then its sweep
     assert names["censure__nms__akaze__rotation"] == "censure·akaze·rot · test-run"
+    pairings = {r.data.tags["gtsweep.cell"]: r.data.tags["gtsweep.pairing"] for r in children}
+    assert pairings["akaze__nms__brief__incremental"] == "akaze·brief·inc · test-run"  # the saved view's groups
     summaries = {s["key"]: s for s in outcome.summaries}
     for run in children:
         tags = run.data.tags

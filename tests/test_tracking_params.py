@@ -20,7 +20,7 @@ from gtsweep.tracking.params import (
     options_by_name,
     parsed_config,
 )
-from gtsweep.tracking.tags import child_name, cluster_tags, unique_name
+from gtsweep.tracking.tags import child_name, cluster_tags, pairing_label, unique_name
 from gtsweep.tracking.views import VIEW_KEY, pairings_state, runs_url, save_pairings_view
 
 
@@ -94,6 +94,14 @@ def test_unique_name_numbers_repeats_within_the_experiment(client):
     assert child_name("sift·brief·inc", "seed=1 (2)") == "sift·brief·inc · seed=1 (2)"
 
 
+def test_a_pairing_groups_one_sweeps_repeats_only():
+    assert pairing_label("sift·brief·inc", "sweeps=smoke (2)") == "sift·brief·inc · sweeps=smoke (2)"
+    # the jobs of a multirun: the multirun's run, then the job's setting without its seeds
+    assert pairing_label("sift·brief·inc", "multirun seed=0,1", "seed=1") == "sift·brief·inc · multirun seed=0,1"
+    assert pairing_label("sift·brief·inc", "m", "matcher=[flann] dataset.seed=2 seed=1") == \
+        "sift·brief·inc · m · matcher=[flann]"
+
+
 def test_saved_view_is_an_experiment_tag_the_ui_reads(client):
     client, experiment = client
     save_pairings_view(client, experiment, "gtsweep.cell")
@@ -103,8 +111,9 @@ def test_saved_view_is_an_experiment_tag_the_ui_reads(client):
     assert state == json.loads(json.dumps(pairings_state("gtsweep.cell")))
     assert state["searchFilter"] == "tags.`gtsweep.cell` LIKE '%'"
     assert "params.`detector`" in state["selectedColumns"] and "metrics.`pose_success`" in state["selectedColumns"]
-    assert [k["groupByData"] for k in state["groupBy"]["groupByKeys"]] == [
-        "detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset"]
+    assert "params.`seed`" not in state["selectedColumns"]  # a group's mean of seeds would read 0.333
+    assert state["groupBy"] == {"aggregateFunction": "average",
+                                "groupByKeys": [{"mode": "tag", "groupByData": "gtsweep.pairing"}]}
     assert [s["name"] for s in state["compareRunSections"]] == [
         "Model metrics", "curves", "ci", "time", "sweep", "System metrics"] and state["isAccordionReordered"]
     save_pairings_view(client, experiment, "gtsweep.cell")  # unchanged: not rewritten
@@ -134,7 +143,8 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
 
     from gtsweep.orchestration.cache import library_versions
     from gtsweep.orchestration.skeleton import run_sweep
-    from gtsweep.tracking.sweep import SweepTracker, summaries_from_mlflow, views_from_mlflow
+    from gtsweep.tracking.readback import summaries_from_mlflow, views_from_mlflow
+    from gtsweep.tracking.sweep import SweepTracker
 
     monkeypatch.chdir(tmp_path)
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

@@ -3,7 +3,7 @@ which files were not tuned on dataset=survey's optimisation views, and a check f
 import pytest
 
 from gtsweep.optimize.stopping import settled
-from gtsweep.report.reproduce import tuned_fingerprints, tuned_line, tuning_fingerprint
+from gtsweep.reproduction.tuned import tuned_fingerprints, tuned_line, tuning_fingerprint
 
 
 def _tuned(directory, name, fingerprint):

@@ -13,7 +13,7 @@ import numpy as np
 
 from gtsweep.cli.overrides import compose_config
 from gtsweep.datasets import load_dataset
-from gtsweep.report.reproduce import SIZES
+from gtsweep.reproduction.command import SIZES
 
 
 def common_area(H: np.ndarray, width: int, height: int, border: int, step: int = 2) -> float:

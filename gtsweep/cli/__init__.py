@@ -14,22 +14,13 @@ import os
 import sys
 
 from gtsweep.cli import completion, lifecycle
+from gtsweep.cli.checks import forget_notes, note_left_out, translate
 from gtsweep.cli.lifecycle import fail
 from gtsweep.cli.overrides import register_all
-from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, hydra_parser
+from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, hydra_parser, search_path
+from gtsweep.core.configguard import check_config_files
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted, interruptible
-from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-from gtsweep.core.searchpath import stray_tuned_files
-
-
-def refuse_stray_tuned_files() -> None:
-    """A YAML file in ``./tuned`` that is not a tuned method file: one line, exit 2."""
-    stray = stray_tuned_files(DEFAULT_TUNED_ROOT)
-    if stray:
-        raise GtsweepError(f"{DEFAULT_TUNED_ROOT}/{stray[0]} is not a tuned method file: ./{DEFAULT_TUNED_ROOT} holds "
-                           f"only <group>/tuned/<name>.yaml (written by experiment=optimize) and gtsweep reads "
-                           f"nothing else from it; move presets and methods to a --config-dir of yours")
 
 
 @contextlib.contextmanager
@@ -56,20 +47,21 @@ def main(argv: list[str] | None = None) -> None:
     if completion.handled(args):  # shell completion of a group's options, before the application loads
         return
     lifecycle.COMMAND[:] = args
+    parsed = hydra_args(args)
     try:
-        refuse_stray_tuned_files()
+        check_config_files(search_path(parsed))  # ./tuned and --config-dir hold data, never code
     except GtsweepError as e:
         fail(e)
-    parsed = hydra_args(args)
     register_all()
+    forget_notes()
     with interruptible(), hydra_errors_raised():  # Ctrl-C while Hydra composes or imports: one line too
         try:
             from gtsweep.cli.app import app
 
             _run_hydra(args=parsed, args_parser=hydra_parser(), task_function=app, config_path=PRIMARY,
                        config_name=PRIMARY_NAME)
+            note_left_out()  # --cfg, --info: nothing ran, the line still says what all left out
         except (HydraException, OmegaConfBaseException, yaml.YAMLError, GtsweepError) as e:
-            from gtsweep.cli.checks import translate
 
             fail(translate(e, parsed.overrides, configs(args)))
         except ValueError as e:  # Hydra refuses a combination of its flags (e.g. -m with --cfg): one line

@@ -19,6 +19,7 @@ from gtsweep.cli.overrides import register_all
 from gtsweep.cli.runs import SWEEP_RECORD, command_key
 from gtsweep.cli.watchdog import watched
 from gtsweep.core.atomic import write_atomically
+from gtsweep.core import interrupts
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted, interruptible
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
@@ -93,6 +94,8 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
     if tracker is not None:
         summary.append(tracker.ui_hint())
     log.info("\n".join(summary))
+    if hydra_cfg.mode.name != "MULTIRUN":  # the result is out: a late Ctrl-C does not change the exit code
+        interrupts.finished()
     print("\n".join(summary))
     if outcome.failed:
         print(f"gtsweep: {len(outcome.failed)} cell(s) failed: {', '.join(outcome.failed)}", file=sys.stderr)

@@ -9,11 +9,17 @@ for every job of ``-m`` before any runs (:mod:`gtsweep.cli.sweeper`), by the run
 """
 from __future__ import annotations
 
+import sys
+
 from gtsweep.cli.search import GRID_GROUPS
+from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, causes, nearest
+from gtsweep.core.factories import check_composed
+from gtsweep.core.registry import availability, left_out_line, require_available
 from gtsweep.core.searchpath import Configs
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
+from gtsweep.stages import device as devices
 
 SINGLE_GROUPS = ("dataset", "experiment", "sweeps")
 KINDS = {"IntegerNode": "an int", "FloatNode": "a float", "BooleanNode": "a bool", "StringNode": "a str"}
@@ -33,10 +39,55 @@ def check_single_groups(overrides, found: Configs) -> None:
             raise BadInput(f"{group} takes one option, not a list; choices: {', '.join(choices(group, found))}")
 
 
+_left_out: dict[str, dict] = {}  # group -> {name: reason} that group=all left out in this command
+_noted: set = set()
+
+
+def runnable_options(group: str, names: list[str]) -> list[str]:
+    """The options ``group=all`` takes: those this install can run (:func:`gtsweep.core.registry.availability`);
+    the others are noted once (:func:`note_left_out`)."""
+    runnable, left_out = availability(REGISTRIES[group], names) if group in REGISTRIES else (names, {})
+    if left_out:
+        _left_out[group] = left_out
+    return runnable
+
+
+def note_left_out() -> None:
+    """One line, once per command, for the methods ``all`` left out (which, and what adds them)."""
+    line = left_out_line([_left_out[group] for group in GRID_GROUPS if group in _left_out])
+    _left_out.clear()
+    if line and line not in _noted:
+        _noted.add(line)
+        print(f"gtsweep: note: {line}", file=sys.stderr)
+
+
+def forget_notes() -> None:
+    """A new command (in this process): nothing left out or noted yet."""
+    _left_out.clear()
+    _noted.clear()
+
+
 def check_job(cfg, overrides, found: Configs) -> None:
-    """What Hydra's composition does not check: a single-option group given a list, the run settings' ranges."""
+    """What Hydra's composition does not check: a single-option group given a list, a method this install cannot
+    run, factories and plug-ins (:func:`gtsweep.core.factories.check_composed`), the run settings' ranges, the
+    device."""
     check_single_groups(overrides, found)
+    require_available(*(REGISTRIES[g][n] for g in GRID_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
+    check_composed(cfg, overrides)
     check_settings(cfg)
+    check_device(cfg)
+    note_left_out()
+
+
+def check_device(cfg) -> None:
+    """``runner.device=cuda`` where torch sees no CUDA device and the grid has a torch method: one line, before
+    the output directory exists (``auto`` falls back to the CPU and never fails)."""
+    runner = plain(cfg.get("runner")) or {}
+    if runner.get("device") != devices.CUDA:
+        return
+    chosen = {group: plain(cfg.get(group)) or {} for group in devices.TORCH_METHODS}
+    devices.resolve(devices.CUDA, any(devices.moves(group, name) for group, names in chosen.items()
+                                      for name in names))
 
 
 def not_selected(group: str, name: str, selected) -> BadInput:

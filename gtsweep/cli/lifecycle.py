@@ -46,10 +46,26 @@ def new_dir(base: str) -> str:
     raise BadInput(f"cannot find a free output directory beside {base}")
 
 
+#: The settings ``${gtsweep.new_dir:...}`` may stand in; anywhere else (a planted file) it creates nothing.
+RUN_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
+_claimed: dict = {}  # (setting, base) -> the folder claimed for it
+
+
+def run_dir(base: str, _node_) -> str:
+    """``${gtsweep.new_dir:...}``: the folder :func:`new_dir` claims for ``hydra.run.dir``/``hydra.sweep.dir``,
+    once per setting (every read gives the same folder); refused in any other setting."""
+    key = _node_._get_full_key(None)
+    if key not in RUN_DIR_KEYS:
+        raise BadInput(f"${{gtsweep.new_dir:...}} sets {' or '.join(RUN_DIR_KEYS)} only, not '{key}'")
+    if (key, base) not in _claimed:
+        _claimed[key, base] = new_dir(base)
+    return _claimed[key, base]
+
+
 def register_resolvers() -> None:
-    """``${gtsweep.new_dir:...}`` for conf/config.yaml; cached, so every read of the setting gives one folder."""
+    """``${gtsweep.new_dir:...}`` for conf/config.yaml (:func:`run_dir`)."""
     if not OmegaConf.has_resolver("gtsweep.new_dir"):
-        OmegaConf.register_new_resolver("gtsweep.new_dir", new_dir, use_cache=True)
+        OmegaConf.register_new_resolver("gtsweep.new_dir", run_dir)
 
 
 def check_writable(directory: str | os.PathLike) -> None:

@@ -12,9 +12,10 @@ def compose_config(overrides: list[str], config_dir: str | None = None):
     one-line :class:`~gtsweep.core.errors.GtsweepError` for a mistake."""
     from hydra import compose, initialize_config_module
 
-    from gtsweep.cli.checks import check_job, translate
+    from gtsweep.cli.checks import check_job, forget_notes, translate
 
     register_all()
+    forget_notes()
     overrides = with_searchpath(list(overrides))
     found = configs(["--config-dir", config_dir, *overrides] if config_dir else overrides)
     if config_dir:  # compose() has no --config-dir: the same place on the search path, via hydra.searchpath
@@ -33,11 +34,13 @@ def compose_config(overrides: list[str], config_dir: str | None = None):
 def register_all() -> None:
     """What composing gtsweep's configs needs in this process: its config sources, resolvers, schemas and
     sweeper; Hydra's warning about a missing ./tuned silenced."""
+    from gtsweep.cli.checks import runnable_options
     from gtsweep.cli.lifecycle import register_resolvers
     from gtsweep.cli.schemas import register_schemas
     from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-    from gtsweep.core.searchpath import ignore_missing_dir, register_help_resolver, register_sources
+    from gtsweep.core.searchpath import choose_options_with, ignore_missing_dir, register_help_resolver, register_sources
 
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
+    choose_options_with(runnable_options)
     for register in (register_sources, register_resolvers, register_help_resolver, register_schemas):
         register()

@@ -7,7 +7,7 @@
   checked (:func:`start_sweep_dir`); a resumed multirun's jobs find their earlier directories below it.
 
 "The same command" is its overrides without ``resume`` (:func:`command_key`), recorded in ``sweep.json`` of a
-run and ``multirun.json`` of a multirun.
+run and of each job of a multirun (the multirun's key, kept in its ``multirun.json``).
 """
 from __future__ import annotations
 
@@ -32,20 +32,16 @@ def command_key(overrides) -> str:
 
 
 def earlier_run(key: str, multirun: bool, root: Path | None = None) -> Path | None:
-    """The newest output directory (a multirun's, for ``multirun``) of an earlier command with ``key``."""
-    root = root or Path.cwd()
-    patterns = (f"multirun/*/*/{MULTIRUN_RECORD}", f"multirun/*/*/*/{SWEEP_RECORD}") if multirun \
-        else (f"outputs/*/*/{SWEEP_RECORD}",)
-    found = {}
-    for pattern in patterns:
-        for path in root.glob(pattern):
-            if json.loads(path.read_text()).get("key") == key:
-                folder = path.parent.parent if path.name == SWEEP_RECORD and multirun else path.parent
-                found[folder] = max(found.get(folder, 0), path.stat().st_mtime)
-    if not found:
-        print("gtsweep: resume=true but no earlier run of this command was found; starting afresh", file=sys.stderr)
+    """The newest output directory (a multirun's, for ``multirun``) of an earlier command with ``key`` that holds a
+    run (:func:`gtsweep.orchestration.resume_pick.pick`, which says which and why)."""
+    from gtsweep.orchestration.resume_pick import pick
+
+    pattern = f"multirun/*/*/*/{SWEEP_RECORD}" if multirun else f"outputs/*/*/{SWEEP_RECORD}"
+    picked = pick(list((root or Path.cwd()).glob(pattern)), key)
+    print(f"gtsweep: {picked.why}", file=sys.stderr)
+    if picked.directory is None:
         return None
-    return max(found, key=found.get)
+    return picked.directory.parent if multirun else picked.directory
 
 
 def claimed(config, key: str) -> Path:

@@ -6,7 +6,8 @@ no ``atexit``): the app cannot mark its MLflow parent run FAILED nor print how t
 itself (a normal end, bad input, an interrupt, :func:`~gtsweep.cli.lifecycle.exit_failed`) writes ``done`` to the
 pipe and the watchdog leaves quietly. If the pipe closes without it, the sweep process died: the watchdog marks
 the parent run (``mlflow.json`` in the output directory) FAILED with the cause — "the Ray cluster was lost (raylet
-died)" when the sweep's own raylet is gone, else "the sweep process died" — and prints the one
+died)" when the sweep's own raylet ended before it, else "the sweep process died" —, ends the Ray processes of the
+sweep's session (Ray's agents would otherwise outlive it by minutes) and prints the one
 ``gtsweep: error: ...`` line with the resume command. It ignores Ctrl-C and SIGTERM (the sweep handles those and
 says ``done``) and never outlives the pipe, so it is never orphaned.
 """
@@ -23,6 +24,7 @@ from pathlib import Path
 from typing import Iterator
 
 from gtsweep.cli.lifecycle import RAYLET_LOST, failure_line
+from gtsweep.orchestration.cluster import end_ray_processes
 
 DONE = b"done\n"
 POLL_S = 0.5
@@ -69,26 +71,57 @@ def alive(pid: int) -> bool:
         return False
 
 
-def wait_for_end(sweep_pid: int) -> int | None:
-    """Block until the pipe says ``done`` (None) or closes without it: the sweep's raylet pid seen (or 0)."""
-    raylet, received = None, b""
-    while True:
-        readable, _, _ = select.select([sys.stdin.buffer], [], [], POLL_S)
-        if readable:
-            chunk = os.read(sys.stdin.fileno(), 64)
-            received += chunk
-            if DONE in received:
-                return None
-            if not chunk:
-                return raylet or 0
-        elif os.getppid() != sweep_pid:  # reparented: the sweep is gone though someone still holds the pipe
-            return raylet or 0
-        raylet = raylet or raylet_of(sweep_pid)
+def wait_for_end(sweep_pid: int, pipe: int | None = None, find_raylet=raylet_of, parent=os.getppid) -> str | None:
+    """Block until the pipe says ``done`` (None) or closes without it, then why the sweep ended: :data:`RAYLET_LOST`
+    when its raylet ended while the sweep still lived, else :data:`PROCESS_DIED`. A kill -9 of the sweep ends its
+    raylet too (Ray ties the raylet's life to its driver), just after: so the order counts, not who is gone. The
+    raylet's end is seen at once through a pidfd (by polling where there is none)."""
+    pipe = sys.stdin.fileno() if pipe is None else pipe
+    raylet, watch, raylet_first, received = None, None, False, b""
+    try:
+        while True:
+            readable, _, _ = select.select([pipe, *([watch] if watch is not None else [])], [], [], POLL_S)
+            if pipe in readable:
+                chunk = os.read(pipe, 64)
+                received += chunk
+                if DONE in received:
+                    return None
+                if not chunk:
+                    return RAYLET_LOST if raylet_first else PROCESS_DIED
+            elif raylet and not raylet_first and not alive(raylet):
+                raylet_first = alive(sweep_pid)  # the raylet ended, the sweep has not (yet)
+            if watch is not None and not alive(raylet):
+                os.close(watch)
+                watch = None
+            if parent() != sweep_pid:  # reparented: the sweep is gone though someone still holds the pipe
+                return RAYLET_LOST if raylet_first else PROCESS_DIED
+            if raylet is None:
+                raylet = find_raylet(sweep_pid)
+                watch = _pidfd(raylet) if raylet else None
+    finally:
+        if watch is not None:
+            os.close(watch)
+
+
+def _pidfd(pid: int) -> int | None:
+    """A file descriptor that becomes readable when ``pid`` ends (Linux 5.3+), or None."""
+    with contextlib.suppress(AttributeError, OSError):
+        return os.pidfd_open(pid)
+    return None
+
+
+def ray_package_dir() -> str | None:
+    """Where Ray's package is installed (its scripts' path marks Ray's agents), without importing it."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("ray")
+    return os.path.dirname(spec.origin) if spec is not None and spec.origin else None
 
 
 def mark_failed(output_dir: Path, cause: str) -> str:
     """Mark the sweep's parent run FAILED; "" when done or when there is none, else a note why not."""
-    from gtsweep.tracking.sweep import PARENT_RECORD, mark_ended
+    from gtsweep.tracking.closing import mark_ended
+    from gtsweep.tracking.sweep import PARENT_RECORD
 
     record = output_dir / PARENT_RECORD
     if not record.exists():  # MLflow off, or the sweep died before its parent run existed
@@ -101,10 +134,10 @@ def main(argv: list[str]) -> int:
     for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(s, signal.SIG_IGN)
     sweep_pid, output_dir, resume = int(argv[0]), Path(os.environ[WATCH_DIR]), os.environ[WATCH_RESUME]
-    raylet = wait_for_end(sweep_pid)
-    if raylet is None:
+    cause = wait_for_end(sweep_pid)
+    if cause is None:
         return 0
-    cause = RAYLET_LOST if raylet and not alive(raylet) else PROCESS_DIED
+    end_ray_processes(ray_package_dir(), owner=sweep_pid)  # its agents would linger for minutes
     marked = mark_failed(output_dir, cause)
     kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
     print(failure_line(cause, kept, marked, resume), file=sys.stderr, flush=True)

@@ -29,8 +29,22 @@ class Interrupted(BaseException):
         super().__init__(f"interrupted by {self.name}")
 
 
+_finished = {"done": False}  # the run's result is out (finished()): later signals change nothing
+
+
+def finished() -> None:
+    """The run's result is printed: SIGINT or SIGTERM from now on are ignored, so that the exit code stays the
+    run's (a finished run never turns into "interrupted")."""
+    _finished["done"] = True
+    for s in SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+
+
 def on_signal(signum, frame) -> None:
-    """The handler: record the signal, ignore later ones (the clean-up must finish), raise :class:`Interrupted`."""
+    """The handler: record the signal, ignore later ones (the clean-up must finish), raise :class:`Interrupted`;
+    nothing once the run has :func:`finished`."""
+    if _finished["done"]:
+        return
     for s in SIGNALS:
         signal.signal(s, signal.SIG_IGN)
     _pending.append(signum)
@@ -62,6 +76,8 @@ def quiet_until_handled() -> None:
 
 
 def _exit_quietly(signum, frame) -> None:
+    if _finished["done"]:
+        return
     os.write(2, f"gtsweep: interrupted by {signal.Signals(signum).name} while starting; nothing was run\n".encode())
     os._exit(128 + signum)
 

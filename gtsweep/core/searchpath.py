@@ -120,9 +120,19 @@ def _searched_with(source: ConfigSource) -> list[ConfigSource]:
     raise ConfigLoadError(f"{source.full_path()}: no config repository asked for it")
 
 
+#: ``(group, names) -> names``: which options ``group=all`` and ``glob()`` may take (:func:`choose_options_with`).
+_choosable = {"of": lambda group, names: names}
+
+
+def choose_options_with(function) -> None:
+    """Let ``function(group, names)`` pick the options ``all`` and ``glob()`` choose from (the command line leaves
+    out the methods this install cannot run)."""
+    _choosable["of"] = function
+
+
 def options_of(configs: "Configs", group: str) -> list[str]:
     """What ``group=all`` and ``group=glob(...)`` choose from: the options of ``group`` on the search path."""
-    return [name for name in configs.options(group) if name != ALL]
+    return _choosable["of"](group, [name for name in configs.options(group) if name != ALL])
 
 
 def stray_tuned_files(root: str | os.PathLike) -> list[str]:

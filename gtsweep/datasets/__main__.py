@@ -1,4 +1,6 @@
 """``python -m gtsweep.datasets [overrides]``: a data set's pair statistics beside the survey's.
+``python -m gtsweep.datasets check [overrides]``: do its poses agree with its images (:mod:`gtsweep.datasets.
+posecheck`)? Exit 0 when they do, 1 when they do not (the line says which convention would fit), 2 for bad input.
 
 A Hydra application (``--help``, ``--cfg job``, ``--config-dir`` work): overrides are Hydra's, e.g.
 ``dataset=microgps dataset.root=/data`` or ``dataset.n_incremental=100``.
@@ -79,13 +81,15 @@ def main(argv: list[str] | None = None) -> int:
 
     register_help_resolver()
     codes = []
+    args = list(sys.argv[1:] if argv is None else argv)
+    task = check if args[:1] == ["check"] else describe
 
     @hydra.main(config_path="pkg://gtsweep.datasets.primary", config_name="dataset_stats", version_base=None)
     def app(cfg) -> None:
-        codes.append(describe(cfg))
+        codes.append(task(cfg))
 
     saved = sys.argv
-    sys.argv = [saved[0], *(saved[1:] if argv is None else argv)]
+    sys.argv = [saved[0], *(args[1:] if task is check else args)]
     try:
         app()
     finally:
@@ -93,11 +97,27 @@ def main(argv: list[str] | None = None) -> int:
     return codes[0] if codes else 0
 
 
+def check(cfg) -> int:
+    """Print the pose check of ``cfg.dataset`` in one line: 0 when the poses agree with the images, 1 when not, 2
+    after a one-line error."""
+    from gtsweep.datasets.posecheck import check_poses
+
+    try:
+        found = check_poses(load_dataset(cfg.dataset))
+    except GtsweepError as error:
+        print(f"gtsweep.datasets: error: {str(error).splitlines()[0]}", file=sys.stderr)
+        return 2
+    print(found.line())
+    return 0 if found.consistent else 1
+
+
 def describe(cfg) -> int:
     """Print the statistics of ``cfg.dataset``; 2 after a one-line error."""
     try:
         dataset = load_dataset(cfg.dataset)
         print(format_statistics(dataset.name, pair_statistics(dataset, per_texture=len(dataset.textures) > 1)))
+        for kind, why in dataset.empty_kinds.items():
+            print(f"no {kind} pairs: {why}")
         law = cfg.dataset.get("absolute") or {}
         if cfg.dataset.get("loader") == "synthetic" and law.get("rotation_law") == "revisit":
             print(revisit_line(law))

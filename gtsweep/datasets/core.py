@@ -32,18 +32,30 @@ def read_gray(path: str | Path) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Sample:
-    """One camera image: ``pose`` maps its pixels to map pixels (3x3 float64), or is None when unknown."""
+    """One camera image: ``pose`` maps its pixels to map pixels (3x3 float64), or is None when unknown;
+    ``max_pixels``: a larger image is downscaled to at most that many pixels on load (a data set without poses)."""
 
     id: str
     texture: str
     path: str | None
     pose: np.ndarray | None = None
+    max_pixels: int | None = None
 
     def load(self) -> np.ndarray:
         """The image as 2-D uint8 gray."""
         if self.path is None:
             raise BadInput(f"sample {self.id} has no image file")
-        return read_gray(self.path)
+        image = read_gray(self.path)
+        return downscaled(image, self.max_pixels) if self.max_pixels else image
+
+
+def downscaled(image: np.ndarray, max_pixels: int) -> np.ndarray:
+    """``image`` shrunk by one factor on both sides (area interpolation) to at most ``max_pixels`` pixels."""
+    if image.size <= max_pixels:
+        return image
+    factor = (max_pixels / image.size) ** 0.5
+    size = (max(1, int(image.shape[1] * factor)), max(1, int(image.shape[0] * factor)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,8 +90,13 @@ def _jsonable(value):
     raise TypeError(f"cannot fingerprint {type(value).__name__}")
 
 
+#: Options of a loaded data set that change none of its images, pairs or poses (the report's scale, the pose check).
+NOT_CONTENT = ("px_per_mm", "pose_check")
+
+
 def content_fingerprint(name: str, options: Mapping, images: Mapping, pairs: Mapping | None) -> str:
-    """Fingerprint of a loaded data set: its options and every chosen sample's path, file size and pose."""
+    """Fingerprint of a loaded data set: its options (but those that change no image, pair or pose) and every chosen
+    sample's path, file size and pose."""
 
     def describe(sample: Sample):
         size = Path(sample.path).stat().st_size if sample.path and Path(sample.path).exists() else None
@@ -89,7 +106,7 @@ def content_fingerprint(name: str, options: Mapping, images: Mapping, pairs: Map
     listed = {split: [describe(s) for s in samples] for split, samples in images.items()}
     paired = {kind: [[p.id, describe(p.reference), describe(p.test)] for p in kind_pairs]
               for kind, kind_pairs in (pairs or {}).items()}
-    return fingerprint_of(name, dict(options), listed, paired)
+    return fingerprint_of(name, {k: v for k, v in options.items() if k not in NOT_CONTENT}, listed, paired)
 
 
 @dataclass
@@ -109,6 +126,8 @@ class Dataset:
     skipped: list[str] = field(default_factory=list)
     excluded: list[str] = field(default_factory=list)
     no_pairs_reason: str = ""
+    #: Why a pair kind has no pairs, and which setting to change (:func:`gtsweep.datasets.pairing.no_pairs_line`).
+    empty_kinds: dict[str, str] = field(default_factory=dict)
 
     def images(self, split: str, textures: Iterable[str] | None = None, limit: int | None = None) -> list[Sample]:
         """Images of ``split`` ("optimisation", "synthetic", or an extra split such as "test")."""

@@ -3,6 +3,7 @@
 Images directly in the root form one texture named after the root; each sub-folder with images is a texture.
 Per texture, in name order, the first ``n_optimisation`` images are the optimisation split and the rest (at most
 ``n_synthetic``) the synthetic split; a texture with no images left over uses all of them for the synthetic split.
+``max_pixels`` (null: none) downscales a larger image on load to at most that many pixels (no poses to rescale).
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset, Sample, content_fingerprint, read_gray
 from gtsweep.datasets.posefiles import Problems
 
-DEFAULTS = {"textures": None, "n_optimisation": 3, "n_synthetic": None}
+DEFAULTS = {"textures": None, "n_optimisation": 3, "n_synthetic": None, "max_pixels": None}
 NO_POSES = "data set 'folder' has no poses: it cannot give incremental pairs; use it with synthetic transforms"
 
 
@@ -48,6 +49,7 @@ def load(cfg: Mapping) -> Dataset:
     root = opts.root_folder(options, "folder")
     n_opt = opts.count(options, "n_optimisation")
     n_syn = opts.count(options, "n_synthetic", allow_none=True)
+    max_pixels = opts.count(options, "max_pixels", allow_none=True) or None
     found = find_images(root)
     if not found:
         raise BadInput(f"{root}: no images found ({', '.join(opts.IMAGE_SUFFIXES)})")
@@ -59,7 +61,7 @@ def load(cfg: Mapping) -> Dataset:
         if not good:
             continue
         textures.append(texture)
-        samples = [Sample(p.relative_to(root).as_posix(), texture, str(p), None) for p in good]
+        samples = [Sample(p.relative_to(root).as_posix(), texture, str(p), None, max_pixels) for p in good]
         images["optimisation"].extend(samples[:n_opt])
         rest = samples[n_opt:] or samples
         images["synthetic"].extend(rest if n_syn is None else rest[:n_syn])

@@ -8,8 +8,9 @@ from typing import Any, Mapping
 from gtsweep.core import config
 from gtsweep.core.errors import BadInput
 
-#: Keys every loader accepts.
-COMMON = {"loader": None, "root": None, "skip_bad": False}
+#: Keys every loader accepts. ``px_per_mm``: the images' scale (pixels per millimetre of floor), for the report's
+#: millimetres; None: pixels only.
+COMMON = {"loader": None, "root": None, "skip_bad": False, "px_per_mm": None}
 
 
 def plain(cfg: Mapping) -> dict:
@@ -24,6 +25,9 @@ def read(cfg: Mapping, defaults: Mapping[str, Any], loader: str) -> dict:
     for key, value in merged.items():
         if value == "???":
             raise BadInput(f"dataset.{key} is required (give it on the command line, e.g. dataset.{key}=...)")
+    ppm = merged["px_per_mm"]
+    if ppm is not None and (isinstance(ppm, bool) or not isinstance(ppm, (int, float)) or not 0 < ppm < float("inf")):
+        raise BadInput(f"dataset.px_per_mm must be a number > 0 (pixels per millimetre of floor) or null, got {ppm!r}")
     return merged
 
 

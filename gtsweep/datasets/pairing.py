@@ -31,6 +31,7 @@ POSED_DEFAULTS = {
     "incremental_min_overlap": 0.01,
     "absolute_min_overlap": 0.1,
     "absolute_min_gap": 50,
+    "pose_check": True,  # the sweep checks the poses against the images first (gtsweep.datasets.posecheck)
 }
 
 
@@ -170,4 +171,27 @@ def posed_dataset(name: str, root: Path, options: Mapping, entries: Mapping[str,
     for split, per_texture in (extra_splits or {}).items():
         images[split] = [sample_of(e, t) for t in sorted(per_texture) for e in per_texture[t]]
     fingerprint = content_fingerprint(name, options, images, pairs)
-    return Dataset(name, textures, images, pairs, fingerprint, skipped=problems.skipped, excluded=list(excluded))
+    empty = {kind: no_pairs_line(kind, entries, options) for kind in pairs if not pairs[kind]}
+    return Dataset(name, textures, images, pairs, fingerprint, skipped=problems.skipped, excluded=list(excluded),
+                   empty_kinds=empty)
+
+
+def no_pairs_line(kind: str, entries: Mapping[str, Sequence[Entry]], options: Mapping) -> str:
+    """Why the pair rules found no ``kind`` pair among ``entries`` (per texture), and the setting to change."""
+    if not options[f"n_{kind}"]:
+        return f"dataset.n_{kind} is 0"
+    sessions: dict[tuple, int] = {}
+    for texture, listed in entries.items():
+        for entry in listed:
+            sessions[texture, entry.session] = sessions.get((texture, entry.session), 0) + 1
+    longest = max(sessions.values(), default=0)
+    found = (f"{sum(map(len, entries.values()))} images in {len(entries)} texture(s), at most {longest} in one "
+             f"session")
+    overlap = f"{kind}_min_overlap"
+    if kind == "incremental":
+        return (f"{found}; an incremental pair is two consecutive images of one session whose footprints overlap "
+                f">= {overlap} ({options[overlap]:g}): add images along a path or lower dataset.{overlap}")
+    gap = options["absolute_min_gap"]
+    return (f"{found}; an absolute pair is two images whose footprints overlap >= {overlap} ({options[overlap]:g}), "
+            f"from different sessions or >= absolute_min_gap ({gap}) images apart in one: set "
+            f"dataset.absolute_min_gap={max(1, longest // 2)} (or lower dataset.{overlap})")

@@ -65,8 +65,10 @@ DEFAULTS = {
     "separate_optimisation": None,  # true: the floor grows until optimisation views have their own band
     "capture": None,                # per-frame capture physics (capture.FRAME_DEFAULTS); null = off
     "day": None,                    # another day's floor for absolute test views (capture.DAY_DEFAULTS)
+    "skip_first": None,             # per split, the first images or pairs left out (not rendered): {synthetic: 16}
 }
-NEW_OPTIONS = ("separate_optimisation", "capture", "day")
+NEW_OPTIONS = ("separate_optimisation", "capture", "day", "skip_first")
+SPLITS = ("optimisation", "synthetic", "incremental", "absolute")
 #: Options that do not change the rendered content.
 NOT_CONTENT = ("loader", "root", "skip_bad", "cache_dir", "name")
 
@@ -95,7 +97,29 @@ def check(options: dict) -> dict:
     nested["photometric"] = None if options["photometric"] is None else _merged("photometric", options["photometric"])
     nested["capture"] = capture.check(options["capture"], capture.FRAME_DEFAULTS)
     nested["day"] = capture.check(options["day"], capture.DAY_DEFAULTS)
+    nested["skip_first"] = check_skip(options.get("skip_first"))
     return {**options, **nested, "textures": textures, "view_size": (int(size[0]), int(size[1]))}
+
+
+def check_skip(skip) -> dict | None:
+    """``skip_first``: None, or per split (:data:`SPLITS`) a count >= 0 of its first images or pairs to leave out."""
+    if skip is None:
+        return None
+    if not isinstance(skip, Mapping) or not set(skip) <= set(SPLITS):
+        raise BadInput(f"dataset.skip_first must map splits ({', '.join(SPLITS)}) to counts, got {skip}")
+    for split, count in skip.items():
+        if not isinstance(count, int) or isinstance(count, bool) or count < 0:
+            raise BadInput(f"dataset.skip_first.{split} must be an integer >= 0, got {count!r}")
+    return {k: int(v) for k, v in skip.items()}
+
+
+def _kept(view: dict, skip: Mapping | None) -> bool:
+    """Whether a view survives ``skip_first``: its image's or pair's number (the id's last number for an image,
+    the pair's for a pair view) is at least its split's skip count."""
+    if not skip:
+        return True
+    item = view.get("pair") or view["id"]
+    return int(item.rsplit("/", 1)[1]) >= skip.get(view["split"], 0)
 
 
 def _merged(key: str, given) -> dict:
@@ -131,7 +155,9 @@ def floor_side(texture: str, options: Mapping) -> int:
 def plan_texture(texture: str, options: Mapping, floor: layout.Floor) -> list[dict]:
     """The views of one texture: dicts with id, split (or pair kind and role), pose and photometric params. Each
     split draws from its own stream and each pair from its own generator, so the first n views of a split are the
-    same for any larger count (a sequential reproduction adds images without moving the earlier ones)."""
+    same for any larger count (a sequential reproduction adds images without moving the earlier ones). With
+    ``skip_first``, the first images or pairs of a split are drawn as always and then left out: the others keep
+    their ids, poses and pixels (a reproduction computes only the images a test reads)."""
     view, jitter = options["view_size"], float(options["scale_jitter"])
     views = []
     for split, box, key in (("optimisation", floor.optimisation_box, "n_optimisation"),
@@ -150,7 +176,9 @@ def plan_texture(texture: str, options: Mapping, floor: layout.Floor) -> list[di
                           "pair": pair_id, "target_overlap": target})
             views.append({"id": f"{pair_id}/test", "split": kind, "pose": test, "params": params,
                           "pair": pair_id, "target_overlap": target})
-    return views if options["capture"] is None else [frame_of(texture, view, views, options) for view in views]
+    if options["capture"] is not None:
+        views = [frame_of(texture, view, views, options) for view in views]
+    return [view for view in views if _kept(view, options.get("skip_first"))]
 
 
 def frame_of(texture: str, view: dict, views: list[dict], options: Mapping) -> dict:

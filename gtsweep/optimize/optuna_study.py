@@ -2,9 +2,11 @@
 complete.
 
 The driver asks ``parallel_trials`` trials at a time, submits them to the executor, tells each result as it
-arrives, and asks the next batch when the batch is done. Before each batch the TPE sampler is re-seeded from
-``sampler_seed`` and the number of complete trials, so the same config and seed give the same trials and numbers,
-on Ray or in-process alike. Trials left RUNNING by a kill are marked FAIL and their parameters asked again.
+arrives, and asks the next batch when the batch is done. Before each ask the TPE sampler is re-seeded from
+``sampler_seed``, the batch (the number of complete trials when it began) and the trial's place in it, so the same
+config and seed give the same trials and numbers, on Ray or in-process alike. Trials left RUNNING by a kill are
+marked FAIL and their parameters enqueued (Optuna's ``enqueue_trial``) at their place: the resume asks the
+interrupted batch again, retries first, before any new batch, so it gives the trials a clean run gives.
 """
 from __future__ import annotations
 
@@ -73,8 +75,33 @@ def open_study(storage: str, name: str):
     for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
         study.tell(trial.number, state=TrialState.FAIL)
         if "retry_of" not in trial.user_attrs:  # a trial that was itself retried may have crashed the process
-            study.enqueue_trial(trial.params, user_attrs={"retry_of": trial.number})
+            place = {k: trial.user_attrs[k] for k in SLOT_ATTRS if k in trial.user_attrs}
+            study.enqueue_trial(trial.params, user_attrs={"retry_of": trial.number, **place})
     return study
+
+
+#: Where a trial stands in the sequence a clean run asks: the batch (complete trials when it was asked) and its
+#: place in the batch. Its sampler is seeded from both, so a trial's parameters do not depend on how many were asked
+#: before it in its process (a resume asks an interrupted batch's missing places as the clean run did).
+SLOT_ATTRS = ("batch", "slot")
+
+
+def batch_places(study, done: int, parallel: int, n_trials: int) -> tuple[int, list[int]]:
+    """The batch to ask and its places: a fresh batch at ``done`` complete trials, or the batch a kill interrupted
+    (its retries are waiting): its places with a retry, then those the kill left unasked, as the clean run asked
+    them (the places of it that completed or failed are not asked again)."""
+    from optuna.trial import TrialState
+
+    retries = [t for t in study.get_trials(deepcopy=False, states=(TrialState.WAITING,))
+               if "retry_of" in t.user_attrs and "batch" in t.user_attrs]
+    if not retries:
+        return done, list(range(min(parallel, n_trials - done)))
+    batch = retries[0].user_attrs["batch"]
+    asked = {t.user_attrs["slot"] for t in study.get_trials(deepcopy=False)
+             if t.user_attrs.get("batch") == batch and "slot" in t.user_attrs}
+    pending = {t.user_attrs["slot"] for t in retries if t.user_attrs["batch"] == batch}
+    unasked = set(range(min(parallel, n_trials - batch))) - asked
+    return batch, sorted(pending | unasked)
 
 
 def complete_trials(study) -> list:
@@ -111,10 +138,14 @@ def optimise(study, target: Target, settings: Mapping, shards, executor, seed: i
     last_error = ""
     while (done := len(complete_trials(study))) < n_trials and not settled(
             [t.value for t in complete_trials(study)], settings.get("patience"), settings.get("min_improvement") or 0):
-        study.sampler = optuna.samplers.TPESampler(seed=stable_seed(settings["sampler_seed"], done),
-                                                   n_startup_trials=settings["n_startup_trials"])
-        for _ in range(min(parallel, n_trials - done)):
-            trial = study.ask(target.distributions)
+        batch, places = batch_places(study, done, parallel, n_trials)
+        for place in places:
+            study.sampler = optuna.samplers.TPESampler(seed=stable_seed(settings["sampler_seed"], batch, place),
+                                                       n_startup_trials=settings["n_startup_trials"])
+            trial = study.ask(target.distributions)  # an enqueued trial first (the defaults, a killed trial's retry)
+            for key, value in (("batch", batch), ("slot", place)):
+                if key not in trial.user_attrs:  # a retry keeps the place it was enqueued with
+                    trial.set_user_attr(key, value)
             executor.submit(evaluate, shards, trial_job(target, settings, trial.params, seed, cache_dir), tag=trial)
         for trial, result in executor.results():
             if "metrics" in result:

@@ -35,14 +35,13 @@ RAW = "raw"
 @lru_cache(maxsize=1)
 def library_versions() -> dict:
     """Versions that change detection results, and which SURF runs (OpenCV's nonfree one or gtsweep's port)."""
-    from gtsweep.stages.surf import opencv_surf_available
+    from gtsweep.stages.surf import implementation_name
 
     try:
         own = metadata.version("gtsweep")
     except metadata.PackageNotFoundError:
         own = "source"
-    surf = "opencv" if opencv_surf_available() else "gtsweep-numpy"
-    return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own, "surf": surf}
+    return {"opencv": cv2.__version__, "numpy": np.__version__, "gtsweep": own, "surf": implementation_name()}
 
 
 def image_hash(image: np.ndarray, mask: np.ndarray | None):
@@ -189,6 +188,14 @@ class DenseMapCache:
         return value
 
 
+def detector_key_config(detector: str, detector_params: dict) -> dict:
+    """What a detection's key says of its detector: its parameters, and the device it computes on where that is
+    not the CPU (:func:`gtsweep.stages.device.current`; CPU keys are the ones they were before devices)."""
+    from gtsweep.stages import device as devices
+
+    return {"params": detector_params, **devices.key_entry("detector", detector, devices.current())}
+
+
 def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | None, detector: str,
                   detector_params: dict, selector: str, selector_params: dict):
     """Detect and select through ``cache``: ``(keypoints, n_detected, seconds)``.
@@ -201,12 +208,11 @@ def detect_cached(cache: KeypointCache, image: np.ndarray, mask: np.ndarray | No
     survey Table 3).
     """
     hashed = image_hash(image, mask)
-    key = detection_key(image, mask, detector, {"params": detector_params}, selector, {"params": selector_params},
-                        hashed=hashed)
+    described = detector_key_config(detector, detector_params)
+    key = detection_key(image, mask, detector, described, selector, {"params": selector_params}, hashed=hashed)
     found = cache.get(key)
     if found is None:
-        raw_key = f"{RAW}-" + detection_key(image, mask, detector, {"params": detector_params}, RAW, {},
-                                             hashed=hashed)
+        raw_key = f"{RAW}-" + detection_key(image, mask, detector, described, RAW, {}, hashed=hashed)
         raw = cache.get(raw_key, count=False)
         if raw is None:
             raw = detect_raw(image, mask, detector, detector_params)

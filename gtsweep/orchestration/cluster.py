@@ -30,6 +30,23 @@ def cluster_address(runner_cfg: Mapping) -> str:
     return str(runner_cfg.get("address") or os.environ.get("RAY_ADDRESS") or "local")
 
 
+def this_machines_cluster(address: str) -> bool:
+    """Whether ``host:port`` names the cluster this machine runs (the one ``ray start`` recorded, which ``auto``
+    finds): the same port, on a loopback address or the recorded host. Ray joins that one as ``auto`` does, with
+    its token when it has one (an explicit address of another machine needs ``RAY_AUTH_MODE=token``)."""
+    try:
+        from ray._private.utils import read_ray_address
+
+        recorded = read_ray_address()
+    except (ImportError, OSError):
+        return False
+    if not recorded or address in ("local", "auto"):
+        return False
+    host, _, port = address.split("://")[-1].rpartition(":")
+    recorded_host, _, recorded_port = recorded.rpartition(":")
+    return port == recorded_port and (host in (recorded_host, "localhost") or host.startswith("127."))
+
+
 def address_source(runner_cfg: Mapping) -> str:
     return "runner.address" if runner_cfg.get("address") else "RAY_ADDRESS"
 
@@ -128,9 +145,14 @@ def stop_workers() -> None:
         with contextlib.suppress(Exception):
             ray.shutdown()
     _stopped["ray"] = True
-    ray_dir = os.path.dirname(getattr(ray, "__file__", None) or "") or None
+    end_ray_processes(os.path.dirname(getattr(ray, "__file__", None) or "") or None)
+
+
+def end_ray_processes(ray_dir: str | None, owner: int | None = None) -> None:
+    """End the Ray processes of ``owner``'s command (:func:`leftover_ray_processes`; default: this process), until
+    none is found (a raylet can still be starting an agent while it is ended)."""
     for _ in range(STOP_ROUNDS):
-        leftovers = leftover_ray_processes(ray_dir=ray_dir)
+        leftovers = leftover_ray_processes(ray_dir=ray_dir, owner=owner)
         if not leftovers:
             return
         for pid in leftovers:
@@ -149,13 +171,15 @@ def ray_stopped() -> bool:
 SESSION = re.compile(rb"session_\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d_\d+_(\d+)(?![\d])")
 
 
-def leftover_ray_processes(proc: Path = Path("/proc"), ray_dir: str | None = None) -> list[int]:
+def leftover_ray_processes(proc: Path = Path("/proc"), ray_dir: str | None = None,
+                           owner: int | None = None) -> list[int]:
     """Ray's processes that this command started, and nothing else's (Linux; elsewhere none): a Ray program
-    (``ray::...``, raylet, GCS, or a script of Ray's package in ``ray_dir``) that descends from this process, or
-    that names the Ray session this process started (by its pid) and began after it. An orphaned agent is found
-    whatever its process group; a cluster the user started with ``ray start`` (another session) or another
-    command's Ray is never matched."""
+    (``ray::...``, raylet, GCS, or a script of Ray's package in ``ray_dir``) that descends from ``owner`` (default:
+    this process; the watchdog names its dead sweep), or that names the Ray session ``owner`` started (by its pid)
+    and began after this process. An orphaned agent is found whatever its process group; a cluster the user
+    started with ``ray start`` (another session) or another command's Ray is never matched."""
     me = os.getpid()
+    owner = owner or me
     table = _processes(proc, ray_dir)
     if me not in table:
         return []
@@ -166,17 +190,17 @@ def leftover_ray_processes(proc: Path = Path("/proc"), ray_dir: str | None = Non
         while pid not in (0, 1) and pid not in seen:
             seen.add(pid)
             pid = table.get(pid, {}).get("ppid", 0)
-            if pid == me:
+            if pid == owner:
                 return True
         return False
 
     def names_my_session(pid: int) -> bool:
         texts = [table[pid]["cmdline"], *_open_files(proc / str(pid))]
         return table[pid]["start"] >= born and any(
-            int(m.group(1)) == me for text in texts for m in SESSION.finditer(text))
+            int(m.group(1)) == owner for text in texts for m in SESSION.finditer(text))
 
     return sorted(pid for pid, info in table.items()
-                  if pid != me and info["ray"] and (descends(pid) or names_my_session(pid)))
+                  if pid not in (me, owner) and info["ray"] and (descends(pid) or names_my_session(pid)))
 
 
 def _processes(proc: Path, ray_dir: str | None) -> dict[int, dict]:

@@ -23,7 +23,15 @@ from typing import Any, Callable, Iterator, Mapping
 from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.interrupts import raise_pending
-from gtsweep.orchestration.cluster import address_source, check_address, cluster_address, record_cluster, record_serial
+from gtsweep.orchestration.cluster import (
+    address_source,
+    check_address,
+    cluster_address,
+    record_cluster,
+    record_serial,
+    this_machines_cluster,
+)
+from gtsweep.orchestration.dashboard import check_dashboard
 
 BACKENDS = ("ray", "serial")
 log = logging.getLogger(__name__)
@@ -89,9 +97,10 @@ class SerialExecutor:
     def put(self, value):
         return value
 
-    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1):
+    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1, num_gpus: float = 0.0):
         """Queue ``function(*args)``; its handle, or a tuple of ``num_returns`` handles. With a ``tag``, the
-        result (the last return value when there are several) comes out of :meth:`results` as ``(tag, result)``."""
+        result (the last return value when there are several) comes out of :meth:`results` as ``(tag, result)``.
+        ``num_gpus`` is Ray's resource request; here every task runs in this process."""
         task = _Task(function, args, num_returns, tag)
         self.queue.append(task)
         return Handle(task, None) if num_returns == 1 else tuple(Handle(task, i) for i in range(num_returns))
@@ -140,18 +149,24 @@ class RayExecutor:
 
         return ray.put(value)
 
-    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1):
-        """As :meth:`SerialExecutor.submit`; returns ObjectRefs (Ray resolves them when passed as arguments)."""
+    def submit(self, function: Callable, *args, tag: Any = None, num_returns: int = 1, num_gpus: float = 0.0):
+        """As :meth:`SerialExecutor.submit`; returns ObjectRefs (Ray resolves them when passed as arguments).
+        ``num_gpus`` (fractional): the GPU share the task needs, so Ray runs it on a node with a GPU."""
         import ray
 
-        key = (function, num_returns)
+        key = (function, num_returns, float(num_gpus))
         if key not in self.remotes:
-            self.remotes[key] = ray.remote(num_cpus=1, num_returns=num_returns, max_retries=self.retries)(
+            self.remotes[key] = ray.remote(**self.resources(num_returns, num_gpus))(
                 with_opencv_threads(function, self.threads))
         refs = self.remotes[key].remote(*args)
         if tag is not None:
             self.pending[refs[-1] if num_returns > 1 else refs] = tag
         return refs
+
+    def resources(self, num_returns: int, num_gpus: float) -> dict:
+        """``ray.remote``'s options for a task: one CPU, and ``num_gpus`` of a GPU where it asks for one."""
+        options = {"num_cpus": 1, "num_returns": num_returns, "max_retries": self.retries}
+        return {**options, "num_gpus": float(num_gpus)} if num_gpus else options
 
     def results(self, batch: int = 64) -> Iterator[tuple[Any, Any]]:
         """``(tag, result)`` as tagged tasks finish, collected ``batch`` at a time (one ``ray.wait`` per result
@@ -200,10 +215,7 @@ def ray_options(runner_cfg: Mapping) -> dict:
     if level not in RAY_LOG_LEVELS:
         raise BadInput(f"runner.ray_log_level must be one of {', '.join(RAY_LOG_LEVELS)}, got {level!r}")
     dashboard = bool(runner_cfg.get("dashboard", False))
-    if dashboard:
-        missing = _dashboard_missing()
-        if missing:
-            raise BadInput(f"runner.dashboard=true needs Ray's dashboard: pip install 'ray[default]' ({missing})")
+    check_dashboard(runner_cfg)
     options = {"include_dashboard": dashboard, "logging_level": RAY_LOG_LEVELS[level], "log_to_driver": True}
     if dashboard:
         options["dashboard_host"] = "127.0.0.1"
@@ -213,17 +225,6 @@ def ray_options(runner_cfg: Mapping) -> dict:
     if runtime_env:
         options["runtime_env"] = runtime_env
     return options
-
-
-def _dashboard_missing() -> str | None:
-    """Why Ray's dashboard cannot start (the minimal ``ray`` lacks its packages), else None."""
-    try:
-        from ray._private.utils import get_dashboard_dependency_error
-
-        error = get_dashboard_dependency_error()
-    except ImportError as e:  # a Ray without that helper: try the dashboard's own package
-        error = e if importlib.util.find_spec("aiohttp") is None else None
-    return None if error is None else str(error)
 
 
 def _report_dashboard(context) -> None:
@@ -255,6 +256,22 @@ def _loopback_only():
             os.environ[key] = saved
 
 
+#: The address this process joined a cluster with (``runner.address`` / ``$RAY_ADDRESS`` as given).
+_joined: dict = {}
+
+
+def _token_auth_if_available() -> None:
+    """Ray's own rule for a cluster found on this machine: token authentication when ``RAY_AUTH_MODE`` is unset
+    and a token exists (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or ``~/.ray/auth_token``)."""
+    try:
+        from ray._private.authentication.authentication_token_setup import (
+            maybe_enable_token_auth_if_token_available,
+        )
+    except ImportError:  # a Ray without token authentication
+        return
+    maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+
+
 def connect(runner_cfg: Mapping) -> None:
     """Start or join Ray once per process.
 
@@ -270,7 +287,7 @@ def connect(runner_cfg: Mapping) -> None:
     address = cluster_address(runner_cfg)
     if ray.is_initialized():
         current = ray.get_runtime_context().gcs_address
-        if address in ("local", "auto") or address.split("://")[-1] == current:
+        if address in ("local", "auto") or address.split("://")[-1] == current or address == _joined.get("address"):
             return
         # Ray 2.60 hangs in its GCS client when a process that has run Ray joins another cluster after
         # ray.shutdown(): say so instead (the CLI runs one sweep per process, so only library use meets this).
@@ -289,8 +306,11 @@ def connect(runner_cfg: Mapping) -> None:
                                            **options))
             record_cluster()
             return
+        if this_machines_cluster(address):  # as `auto` joins it: with this machine's token, if it has one
+            _token_auth_if_available()
         try:
             _report_dashboard(ray.init(address=address, **options))
+            _joined["address"] = address  # Ray reports the head's own address, which may differ (127.0.0.1)
         except (ConnectionError, RuntimeError, ValueError) as e:
             hint = "" if address == "auto" else " (a remote head needs RAY_AUTH_MODE=token and RAY_AUTH_TOKEN)"
             raise BadInput(f"cannot join the Ray cluster at '{address}' ({address_source(runner_cfg)}): "

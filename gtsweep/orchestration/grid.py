@@ -20,6 +20,7 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.plugins import enable as enable_plugins
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
+from gtsweep.stages import device as devices
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
@@ -84,6 +85,8 @@ class Grid:
     cells: list[Cell] = field(default_factory=list)
     matchers: dict[str, dict] = field(default_factory=dict)
     estimators: dict[str, dict] = field(default_factory=dict)
+    #: Where the torch methods compute (``runner.device`` resolved: cpu or cuda; :mod:`gtsweep.stages.device`).
+    device: str = "cpu"
 
     @property
     def declared(self) -> dict[str, dict[str, dict]]:
@@ -114,7 +117,19 @@ class Grid:
             config["matcher"] = self.matchers[cell.matcher]
         if cell.estimator is not None:
             config["estimator"] = self.estimators[cell.estimator]
+        config.update(self.device_entry(cell))
         return config
+
+    def device_entry(self, cell: Cell) -> dict:
+        """``{"device": ...}`` when one of the cell's methods computes on a device other than the CPU, else
+        nothing (a CPU run's cell hashes are the ones it had before ``runner.device`` existed)."""
+        groups = (("detector", cell.detector), ("descriptor", cell.descriptor), ("matcher", cell.matcher))
+        return {"device": self.device} if any(devices.key_entry(g, n, self.device) for g, n in groups) else {}
+
+    def torch_methods(self) -> bool:
+        """Whether any method of the grid runs on torch (only then does ``runner.device=auto`` look for CUDA)."""
+        groups = {"detector": self.detectors, "descriptor": self.descriptors, "matcher": self.matchers}
+        return any(devices.moves(group, name) for group, names in groups.items() for name in names)
 
     def cell_hash(self, cell: Cell, dataset_fingerprint: str, seed: int) -> str:
         return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
@@ -220,6 +235,7 @@ def build_grid(cfg: Mapping) -> Grid:
         matchers=resolve_group(with_survey_method(cfg, "matcher"), "matcher") if name != "detection" else {},
         estimators=resolve_group(with_survey_method(cfg, "estimator"), "estimator") if name == "pose" else {},
     )
+    grid.device = devices.resolve((plain(cfg.get("runner")) or {}).get("device"), grid.torch_methods())
     pairings = pairings_of(cfg, grid)
     selected = selectors_of(cfg, grid)
     combinations = [(m, e) for m in grid.matchers for e in (grid.estimators or [None])]
@@ -281,6 +297,21 @@ def _matcher_na(grid: Grid, matcher: str, descriptor: str) -> str | None:
     """Why ``matcher`` (with the grid's params) cannot match ``descriptor``'s vectors, else None."""
     built = MATCHERS.get(matcher).build(grid.matcher_params(matcher))
     return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm, descriptor)
+
+
+def matcher_na_line(cells) -> str | None:
+    """One line for the ``cells`` that are NA because their matcher cannot match their descriptor (known from the
+    grid alone: written NA, nothing computed for them), by matcher; None when there is none."""
+    by_matcher: dict[str, dict] = {}
+    for cell in cells:
+        matcher, descriptor = getattr(cell, "matcher", None), getattr(cell, "descriptor", None)
+        if cell.na_reason and matcher and descriptor and applicability(cell.detector, descriptor) is None:
+            found = by_matcher.setdefault(matcher, {"descriptors": {}, "cells": 0})
+            found["descriptors"].setdefault(descriptor, cell.na_reason.removesuffix(f", not {descriptor}"))
+            found["cells"] += 1
+    return "; ".join(f"matcher {matcher} cannot match descriptor {', '.join(found['descriptors'])} "
+                     f"({next(iter(found['descriptors'].values()))}): {found['cells']} cell(s) NA, not computed"
+                     for matcher, found in by_matcher.items()) or None
 
 
 def pairings_of(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:

@@ -21,6 +21,7 @@ from gtsweep.orchestration import tasks
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import Cell, Grid
 from gtsweep.orchestration.shards import shard_kind
+from gtsweep.stages import device as devices
 from gtsweep.stages.describe import DESCRIPTORS
 
 
@@ -105,7 +106,7 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
     stats = RunStats(detection_tasks=len(jobs))
     tracker = _CellTracker(jobs, on_cell)
     stats.pairing_tasks = submit(executor, grid, shards, jobs, seed, cache_dir,
-                                 runner_cfg.get("describe_together", True))
+                                 runner_cfg.get("describe_together", True), runner_cfg.get("gpus_per_task", 0.25))
     for job, result in executor.results():
         if isinstance(job, PairingGroup) and "parts" not in result:  # crashed: each job by itself
             for pairing, args in zip(job.pairings, job.alone):
@@ -132,13 +133,14 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
 
 
 def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], seed: int,
-           cache_dir: str | None, together: bool = True) -> int:
+           cache_dir: str | None, together: bool = True, gpus_per_task: float = 0.25) -> int:
     """The task graph: each detection task's keypoints are passed to its pairing tasks; every task is tagged
     with its job. With ``together``, the pairing jobs of one (transform, shard) whose descriptor describes
     keypoint sets together (DAISY, SIFT) share one task (:class:`PairingGroup`), submitted as soon as its last
     member's detection is. Returns the number of pairing tasks. Each shard in ``shards`` is replaced by its
     handle as it is put, so the driver does not keep a second copy of the images once Ray's object store holds
-    them (1.5 GB at Table 4's 600 pairs of 1288×964 views)."""
+    them (1.5 GB at Table 4's 600 pairs of 1288×964 views). A task that runs a method on the GPU
+    (``grid.device``) asks Ray for ``gpus_per_task`` of one (``num_gpus``), so a cluster sends it to a GPU node."""
     for kind_shards in shards.values():
         for i in range(len(kind_shards)):
             kind_shards[i] = executor.put(kind_shards[i])
@@ -152,12 +154,14 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
     for job in jobs:
         transform_cfg = grid.transforms[job.transform]
         shard = refs[shard_kind(job.transform, transform_cfg)][job.shard]
-        payload, _ = executor.submit(tasks.detect_shard, shard, *_detection_args(grid, job, seed, cache_dir),
-                                     tag=job, num_returns=2)
+        detection_args = _detection_args(grid, job, seed, cache_dir)
+        payload, _ = executor.submit(tasks.detect_shard, shard, *detection_args, tag=job, num_returns=2,
+                                     num_gpus=_gpus(detection_args[2], gpus_per_task))
         for pairing in job.pairings:
             alone = (shard, job.transform, transform_cfg, payload, *args_of[id(pairing)], cache_dir, together)
+            gpus = _gpus(args_of[id(pairing)][-1], gpus_per_task)
             if id(pairing) not in key:
-                executor.submit(tasks.pair_shard, *alone, tag=pairing)
+                executor.submit(tasks.pair_shard, *alone, tag=pairing, num_gpus=gpus)
                 submitted += 1
                 continue
             group = groups.setdefault(key[id(pairing)], PairingGroup([]))
@@ -167,7 +171,7 @@ def submit(executor, grid: Grid, shards: dict[str, list[dict]], jobs: list[Detec
                 _, *args = args_of[id(pairing)]
                 executor.submit(tasks.pair_shard_members, shard, job.transform, transform_cfg,
                                 [p.cells[0].detector for p in group.pairings], *args, cache_dir, together,
-                                *[detection for _, _, _, detection, *_ in group.alone], tag=group)
+                                *[detection for _, _, _, detection, *_ in group.alone], tag=group, num_gpus=gpus)
                 submitted += 1
     return submitted
 
@@ -240,9 +244,15 @@ def _merge(parts: dict[int, dict]) -> dict:
     return {"rows": pd.DataFrame.from_records(rows), **ran}
 
 
+def _gpus(methods: dict, gpus_per_task: float) -> float:
+    """The GPU share a task asks Ray for: ``gpus_per_task`` when its methods compute on CUDA, else none."""
+    return float(gpus_per_task) if methods.get("device", devices.CPU) != devices.CPU else 0.0
+
+
 def _detection_args(grid: Grid, job: DetectionJob, seed: int, cache_dir):
     method = {"detector": job.detector, "detector_cfg": grid.detectors[job.detector],
-              "selector": job.selector, "selector_cfg": grid.selectors[job.selector]}
+              "selector": job.selector, "selector_cfg": grid.selectors[job.selector],
+              **devices.key_entry("detector", job.detector, grid.device)}
     return (job.transform, grid.transforms[job.transform], method, grid.experiment, seed, cache_dir, grid.declared,
             job.keep_raw)
 
@@ -255,4 +265,7 @@ def _pairing_args(grid: Grid, pairing: PairingJob, seed: int):
     methods = {"matchers": {c.matcher: grid.matcher_params(c.matcher) for c in pairing.cells},
                "estimators": {c.estimator: grid.estimator_params(c.estimator) for c in pairing.cells
                               if c.estimator is not None}}
+    moved = [("descriptor", cell.descriptor)] + [("matcher", c.matcher) for c in pairing.cells]
+    if any(devices.key_entry(group, name, grid.device) for group, name in moved):
+        methods["device"] = grid.device
     return cell.detector, cell.descriptor, params, grid.experiment, seed, grid.declared, methods

@@ -35,6 +35,8 @@ SETTINGS = {
     "runner.shard_size": _COUNT,
     "runner.opencv_threads": Range(1, None, integer=True, optional=True),
     "runner.describe_together": Choice((True, False)),
+    "runner.device": Choice(("auto", "cpu", "cuda")),
+    "runner.gpus_per_task": Range(0, 1, low_open=True),
     "runner.progress": Choice((True, False)),
     "runner.dashboard": Choice((True, False)),
     "runner.ray_log_level": Choice(("debug", "info", "warning", "error")),
@@ -53,3 +55,7 @@ def check_settings(cfg: Mapping) -> None:
     values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")
               if key in cfg}
     check_all(values, SETTINGS)
+    if (values.get("runner") or {}).get("dashboard"):  # its packages, before anything is created
+        from gtsweep.orchestration.dashboard import check_dashboard
+
+        check_dashboard(values["runner"])

@@ -19,11 +19,13 @@ import pandas as pd
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
+from gtsweep.core.errors import BadInput
 from gtsweep.datasets import load_dataset
+from gtsweep.datasets.pixels import check_dataset
 from gtsweep.orchestration.cache import cache_state
 from gtsweep.orchestration.cluster import check_address, cluster_record
 from gtsweep.orchestration.executor import backend
-from gtsweep.orchestration.grid import Cell, Grid, build_grid
+from gtsweep.orchestration.grid import Cell, Grid, build_grid, matcher_na_line
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
 from gtsweep.orchestration.runner import RunStats, plan, run
@@ -94,6 +96,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     grid = work.build_grid(cfg)
     runner_cfg = plain(cfg.get("runner")) or {}
     log.info("grid: %d cells (%s experiment)", len(grid.cells), grid.experiment["name"])
+    say_not_applicable(grid.cells)
     if backend(runner_cfg) == "ray":
         check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
     if on_checked is not None:
@@ -101,6 +104,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     cache_dir, cache_note = cache_state(cfg)
     progress.phase("render data set")
     data = work.load_data(cfg, grid)
+    check_dataset(getattr(data, "dataset", data), grid.cells, runner_cfg)  # largest image x workers x B/px
     log.info("data set '%s', fingerprint %s", data.name, data.fingerprint)
     seed = int(cfg.get("seed", 0))
     store = ResultStore(output_dir)
@@ -181,6 +185,18 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     return outcome
 
 
+def say_not_applicable(cells) -> None:
+    """Before any work: the cells a matcher cannot run, in one line; a grid none of whose cells can run is a
+    one-line BadInput (nothing would be computed)."""
+    note = matcher_na_line(cells)
+    if cells and all(cell.na_reason for cell in cells):
+        reasons = note or "; ".join(dict.fromkeys(cell.na_reason for cell in cells))
+        raise BadInput(f"none of the grid's {len(cells)} cell(s) can run: {reasons}")
+    if note:
+        log.info("%s", note)
+        print(f"gtsweep: note: {note}", file=sys.stderr)
+
+
 @dataclass(frozen=True)
 class PairData:
     """A data set of images and pairs (:func:`gtsweep.datasets.load_dataset`) as the skeleton reads it."""
@@ -203,7 +219,24 @@ def _added(a: RunStats, b: RunStats) -> RunStats:
 
 def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
     dataset = load_dataset(cfg["dataset"])
+    for kind in [name for name, transform in grid.transforms.items() if transform["kind"] == "pairs"]:
+        if not dataset.pairs(kind):  # a data set too small for the pair rules: one line before any work
+            why = dataset.empty_kinds.get(kind, f"dataset.n_{kind}?")
+            raise BadInput(f"data set '{dataset.name}' has no {kind} pairs: {why}")
+    if cfg["dataset"].get("pose_check") and dataset.pairs("incremental"):
+        check_the_poses(dataset)
     return PairData(dataset, dataset.fingerprint())
+
+
+def check_the_poses(dataset) -> None:
+    """Before any work: poses that disagree with the images stop the sweep in one line (which convention would
+    fit); poses that agree are said in the log."""
+    from gtsweep.datasets.posecheck import check_poses
+
+    found = check_poses(dataset)
+    log.info("%s", found.line())
+    if not found.consistent:
+        raise BadInput(f"{found.line()}; or dataset.pose_check=false to run anyway")
 
 
 def _evaluate_pairs(grid: Grid, data: PairData, cells: list, runner_cfg: dict, seed: int, cache_dir, finish,

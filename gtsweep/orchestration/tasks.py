@@ -22,6 +22,7 @@ from gtsweep.evaluation.evaluate import build_methods, detect_views, evaluate_me
 from gtsweep.orchestration.cache import DenseMapCache, KeypointCache, detect_cached
 from gtsweep.orchestration.executor import describe_error
 from gtsweep.orchestration.grid import declare
+from gtsweep.stages import device as devices
 
 
 
@@ -51,8 +52,9 @@ def detect_shard(shard: dict, transform: str, transform_cfg: dict, method: dict,
     cache = KeypointCache(cache_dir, keep_raw=keep_raw)
     try:
         declare(declared or {})
-        keypoints, rows = detect_views(partial(detect_cached, cache), shard, transform, transform_cfg, method,
-                                       experiment, seed)
+        with devices.using(method.get("device")):
+            keypoints, rows = detect_views(partial(detect_cached, cache), shard, transform, transform_cfg, method,
+                                           experiment, seed)
     except Exception as e:  # reported with the cell; the sweep goes on
         failed = {**failure(e), **counts(cache)}
         return failed, _timed(started, failed)
@@ -102,9 +104,10 @@ def pair_shard_members(shard: dict, transform: str, transform_cfg: dict, detecto
                if part is None]
     try:
         declare(declared or {})
-        matchers, estimators = build_methods(methods, experiment)
-        outcomes = evaluate_members(shard, transform, transform_cfg, members, descriptor, descriptor_params,
-                                    experiment, seed, matchers, estimators, dense, together) if members else []
+        with devices.using((methods or {}).get("device")):
+            matchers, estimators = build_methods(methods, experiment)
+            outcomes = evaluate_members(shard, transform, transform_cfg, members, descriptor, descriptor_params,
+                                        experiment, seed, matchers, estimators, dense, together) if members else []
     except Exception as e:
         outcomes = [e] * len(members)
     outcomes = iter(outcomes)

@@ -1,6 +1,8 @@
-"""One table and one report across the jobs of a multirun (``python -m gtsweep -m seed=0,1 ...``).
+"""One table and one report across the jobs of a multirun (``python -m gtsweep -m dataset.seed=0,1 ...``).
 
-Jobs that differ only in ``seed`` are repeats of one setting: each cell gets the mean of its metrics over the
+Jobs that differ only in ``seed`` or ``dataset.seed`` are repeats of one setting. ``dataset.seed`` draws the images
+and pairs (another sample of the data); ``seed`` only the evaluation's random draws (RANSAC, the synthetic transforms'
+noise) on the same images, so its spread is RANSAC's alone: the summary's header says which one varied. each cell gets the mean of its metrics over the
 repeats (:func:`~gtsweep.report.breakdown.mean_summary`), their spread (sample standard deviation) and the number
 of repeats. Jobs that differ in anything else are separate settings (named by the overrides that differ, e.g.
 ``selector.nms.params.n=500``), side by side.
@@ -32,7 +34,11 @@ from gtsweep.report.scale import load_scale
 from gtsweep.report.settings import write_settings
 from gtsweep.report.tables import ALPHA, load_summaries
 
-SEED = re.compile(r"^\+*seed=(.*)$")
+SEED = re.compile(r"^\+*(?P<key>(?:dataset\.)?seed)=(?P<value>.*)$")
+#: What each seed varies, for the summary's header.
+VARIES = {"dataset.seed": "dataset.seed: the images and pairs are drawn anew for each repeat",
+          "seed": "seed: RANSAC's and the synthetic transforms' draws only, on the same images and pairs (fixed by "
+                  "dataset.seed; -m dataset.seed=0,1 varies them)"}
 METHODS = ["detector", "selector", "descriptor", "transform", "matcher", "estimator"]
 
 
@@ -46,8 +52,9 @@ def jobs_of(sweep_dir: Path) -> list[dict]:
             jobs.append({"dir": record.parent, "job": record.parent.name, "overrides": overrides})
     shared = set.intersection(*(set(job["overrides"]) for job in jobs)) if jobs else set()
     for job in jobs:
-        seeds = [SEED.match(o).group(1) for o in job["overrides"] if SEED.match(o)]
-        job["seed"] = int(seeds[0]) if seeds else 0
+        seeds = {m["key"]: m["value"] for m in map(SEED.match, job["overrides"]) if m}
+        job["seeds"] = seeds
+        job["seed"] = "/".join(seeds[k] for k in sorted(seeds)) if len(seeds) > 1 else int(next(iter(seeds.values()), 0))
         job["setting"] = " ".join(o for o in job["overrides"] if o not in shared and not SEED.match(o)) or "all"
     return jobs
 
@@ -114,8 +121,9 @@ def repeat_table(rows: pd.DataFrame) -> pd.DataFrame:
 def headline_markdown(summary: pd.DataFrame, jobs: list[dict], headlines) -> str:
     """The headline metric of each cell as ``mean ± std (n)``, per setting."""
     seeds = sorted({job["seed"] for job in jobs})
+    varied = [VARIES[key] for key in sorted(VARIES) if len({job["seeds"].get(key) for job in jobs}) > 1]
     lines = [f"**Multirun: {len(jobs)} jobs, seeds {', '.join(map(str, seeds))}; mean ± std over the seeds "
-             f"(n = repeats that evaluated the cell)**", ""]
+             f"(n = repeats that evaluated the cell)**", "", *(f"Varied: {v}." for v in varied), ""]
     for metric in [m for m in schema.ordered(headlines) if f"{m}_mean" in summary]:
         part = summary[summary[f"{metric}_mean"].notna()]
         if part.empty:

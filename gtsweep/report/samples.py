@@ -64,6 +64,13 @@ def _halves(rows: pd.DataFrame, textures: list[str] | None) -> np.ndarray:
     return np.asarray(halves, dtype=int)[codes] if len(codes) else np.zeros(0, dtype=int)
 
 
+def in_half(rows: pd.DataFrame, half, textures: list[str] | None = None) -> np.ndarray:
+    """Which rows belong to ``half``: 0 or 1 (:func:`half_of`), or a test set defined on the halves, a callable
+    ``(rows, halves) -> mask`` (e.g. one half of the first images plus every later image)."""
+    halves = _halves(rows, textures)
+    return np.asarray(half(rows, halves), dtype=bool) if callable(half) else halves == half
+
+
 def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
           half: int | None = None, textures: list[str] | None = None) -> pd.DataFrame | None:
     """Columns cluster, stratum, sum, count of an entry's views (None when a cell's rows are missing); with
@@ -91,7 +98,7 @@ def _long(cells: pd.DataFrame, metric: str, views: Views, where: Mapping | None,
                 "stratum": f"{transform}|" + repeat, "sum": np.where(keep, num, 0.0),
                 "count": np.where(keep, den, 0.0)}
         if half is not None:
-            chosen = _halves(rows, textures) == half
+            chosen = in_half(rows, half, textures)
             part = {name: column[chosen] for name, column in part.items()}
         parts.append(part)
     if not parts:

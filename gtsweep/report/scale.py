@@ -4,8 +4,9 @@ The survey (section 5) counts keypoints per image (the budget N = 1000, the "< N
 1288 x 964 views) and judges a pose within 30 px and 1.5 deg (Zhang et al.'s rule on Micro-GPS, where 30 px =
 4.8 mm: 6.25 px/mm). A reader of a run at another view size or scale needs the physical meaning of these
 numbers: this module reads them from the run's resolved configuration (``<run>/.hydra/config.yaml`` or the parent
-MLflow run's ``config.yaml``) and writes the line printed under the tables and in the terminal footer. When the run
-does not record its data set's scale, the line says it assumes Micro-GPS' scale.
+MLflow run's ``config.yaml``) and writes the line printed under the tables and in the terminal footer. The scale is
+the data set's ``dataset.px_per_mm`` (Micro-GPS' loader: its camera's); where the run does not give one (one's own
+data without the key), the line gives pixels only and names the key.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ POSE_TABLES = ("table4", "table5", "table6", "table7")
 
 @dataclass
 class Scale:
-    """The run's scale and thresholds; ``known``: px/mm is the data set's (else Micro-GPS' is assumed)."""
+    """The run's scale and thresholds; ``known``: px/mm is the data set's (else the line gives pixels only)."""
 
     px_per_mm: float = MICROGPS_PX_PER_MM
     known: bool = False
@@ -38,21 +39,22 @@ class Scale:
         return px / self.px_per_mm
 
     def _source(self) -> str:
-        return (f"{self.px_per_mm:g} px/mm, the data set's" if self.known else
-                f"{self.px_per_mm:g} px/mm, assumed: Micro-GPS' scale (the run does not record its data set's)")
+        return f"{self.px_per_mm:g} px/mm, the data set's" if self.known else \
+            "pixels only: the data set gives no dataset.px_per_mm"
 
     def _per_view(self) -> str:
         if self.view_size is None:
             return "per view"
         w, h = self.view_size
-        return f"per {w}×{h} px view = {self.mm(w):.0f}×{self.mm(h):.0f} mm"
+        return f"per {w}×{h} px view" + (f" = {self.mm(w):.0f}×{self.mm(h):.0f} mm" if self.known else "")
 
     def detection(self) -> str:
         n = "/".join(str(b) for b in self.budgets) if self.budgets else "all keypoints (no selection)"
         return f"keypoint budget N = {n} and < N KPs threshold {self.min_keypoints} keypoints {self._per_view()}"
 
     def pose(self) -> str:
-        return f"success radius {self.radius_px:g} px = {self.mm(self.radius_px):.1f} mm"
+        mm = f" = {self.mm(self.radius_px):.1f} mm" if self.known else ""
+        return f"success radius {self.radius_px:g} px{mm}"
 
     def line(self, detection: bool = True, pose: bool = True) -> str:
         """E.g. ``Scale (6.25 px/mm, the data set's): success radius 30 px = 4.8 mm; keypoint budget N = 1000 and

@@ -114,8 +114,8 @@ DESCRIPTORS: Registry[DescriptorSpec] = Registry("descriptor", [
                 learned=True),
     # ALIKED and DISK describe any keypoints (gtsweep.stages.learned): 128 floats, L2.
     *(_descriptor(name, label, functools.partial(_LEARNED("ALIKED_create"), model_name=model), {}, norm=L2,
-                  learned=True) for name, label, model in ALIKED_VARIANTS),
-    _descriptor("disk", "DISK", _LEARNED("DISK_create"), {}, norm=L2, learned=True),
+                  learned=True, extra="learned") for name, label, model in ALIKED_VARIANTS),
+    _descriptor("disk", "DISK", _LEARNED("DISK_create"), {}, norm=L2, learned=True, extra="learned"),
 ], spec=DescriptorSpec, make=spec_declare(DescriptorSpec, "descriptor"))
 
 #: Detectors whose keypoints carry an ``octave`` that the same-named descriptor understands.

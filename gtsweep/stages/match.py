@@ -241,5 +241,5 @@ MATCHERS: Registry[MatcherSpec] = Registry("matcher", [
              approximate=True),
     # LightGlue (ALIKED, DISK) and LighterGlue (XFeat), torch + shipped weights: gtsweep/stages/lightglue.py.
     _matcher("lightglue", "LightGlue", lazy_factory("gtsweep.stages.lightglue", "LightGlueMatcher"),
-             {"filter_threshold": 0.1, "depth_confidence": 0.95, "width_confidence": 0.99}),
+             {"filter_threshold": 0.1, "depth_confidence": 0.95, "width_confidence": 0.99}, extra="learned"),
 ], spec=MatcherSpec)

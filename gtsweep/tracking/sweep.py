@@ -3,7 +3,8 @@
 Several processes writing one sqlite store at once corrupt it, so workers return plain rows and only the driver
 logs, with ``MlflowClient.log_batch`` (about 4x faster than one call per metric). The default store is
 ``sqlite:///<cwd>/mlflow.db`` (MLflow 3's default); ``mlflow.tracking_uri`` or ``MLFLOW_TRACKING_URI`` selects a
-server. A resumed sweep reuses its parent run and logs only cells that have no child run yet.
+server. A resumed sweep reuses its parent run and logs only cells that have no child run yet; a cell computed again
+with another configuration replaces its old child, which is deleted.
 
 As the UI expects (:mod:`gtsweep.tracking.tags`): the experiment is marked as model development and has a saved
 view for comparing pairings (:mod:`~gtsweep.tracking.views`), every run carries MLflow's source, user and
@@ -27,6 +28,7 @@ from typing import Mapping
 
 from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
+from gtsweep.tracking.closing import REASON_TAG, clear_reason, mark_ended, reopen
 from gtsweep.tracking.figures import FIGURE, strength_figure
 from gtsweep.tracking.metricnames import SWEEP, mlflow_name, summary_name
 from gtsweep.tracking.params import (
@@ -40,11 +42,13 @@ from gtsweep.tracking.params import (
 )
 from gtsweep.tracking.store import git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (
+    PAIRING_TAG,
     cell_names,
     child_name,
     cluster_tags,
     model_development,
     ms,
+    pairing_label,
     quiet_mlflow,
     source_tags,
     unique_name,
@@ -52,13 +56,14 @@ from gtsweep.tracking.tags import (
 from gtsweep.tracking.views import runs_url, save_pairings_view
 
 PARENT_RECORD = "mlflow.json"
-CELL_TAG, HASH_TAG, STATUS_TAG, REASON_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status", "gtsweep.reason"
+CELL_TAG, HASH_TAG, STATUS_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status"
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
 RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.skeleton)
 VIEWS_FILE = "views.csv"  # a child run's per-view rows (one name in every run: MLflow's compare page shows them)
 
 
 VIEWS_TAG = "gtsweep.n_views"
+STALE_TAG = "gtsweep.stale"  # a deleted child whose cell was computed again with another configuration
 
 
 def step_scale(values) -> int:
@@ -88,6 +93,7 @@ class SweepTracker:
         self.experiment_id: str | None = None
         self.parent_id: str | None = None
         self.logged: set[tuple[str, str]] = set()  # (cell key, config hash) already logged under the parent
+        self.children: dict[str, dict[str, str]] = {}  # cell key -> config hash -> its child run (on resume)
 
     def open(self) -> None:
         """Reach the store and its experiment (before any work: a sweep hook ``on_checked``)."""
@@ -104,10 +110,11 @@ class SweepTracker:
         self.config, self.fingerprint, self.written = parsed_config(self.config_yaml), dataset_fingerprint, \
             written_options()
         self.output_dir.mkdir(parents=True, exist_ok=True)
+        self.sweep_name = self.client.get_run(self.nest_under).info.run_name if self.nest_under else None
         record = self.output_dir / PARENT_RECORD
         if record.exists():
             self.parent_id = json.loads(record.read_text())["parent_run_id"]
-            self.client.update_run(self.parent_id, status="RUNNING")
+            reopen(self.client, self.parent_id)
             self.run_name = self.client.get_run(self.parent_id).info.run_name
             self.logged = self._logged_children(self.experiment_id)
         else:
@@ -143,16 +150,28 @@ class SweepTracker:
                 self.client.delete_run(run.info.run_id)
             else:
                 complete.add(key)
+                self.children.setdefault(key[0], {})[key[1]] = run.info.run_id
         return complete
+
+    def _drop_stale(self, cell_key: str, cell_hash: str) -> None:
+        """Delete the children of ``cell_key`` logged with another configuration (a parameter changed before the
+        resume, so the cell was computed again): tagged :data:`STALE_TAG` with why, then deleted, so that
+        MLflow's searches, the saved view and ``--mlflow`` reports see the cell's current run only."""
+        for old_hash, run_id in list(self.children.get(cell_key, {}).items()):
+            if old_hash != cell_hash:
+                self.client.set_tag(run_id, STALE_TAG, f"computed again with another configuration ({cell_hash})")
+                self.client.delete_run(run_id)
+                del self.children[cell_key][old_hash]
+                self.logged.discard((cell_key, old_hash))
 
     def log_cell(self, cell, summary: Mapping, rows=None) -> None:
         """One child run: what identifies the cell (methods as written, seed, data set, method configurations), its
         schema metrics, steps per strength and their figure, NA reason, its per-view rows; it starts and ends when
         the cell's tasks ran."""
-        if (cell.key, summary.get("hash")) in self.logged:
-            return
         with interrupts.deferred():  # Ctrl-C waits until the child run is whole
-            self._log_child(cell, summary)
+            self._drop_stale(cell.key, summary.get("hash"))
+            if (cell.key, summary.get("hash")) not in self.logged:
+                self._log_child(cell, summary)
 
     def _log_child(self, cell, summary: Mapping) -> None:
         from mlflow.entities import Metric, RunTag
@@ -160,13 +179,16 @@ class SweepTracker:
         from gtsweep.evaluation import schema
 
         params = cell_params(cell, self.grid.cell_config(cell, "", 0), self.config, self.fingerprint, self.written)
+        cell_name = self.names.get(cell.key, cell.key)
+        pairing = pairing_label(cell_name, self.sweep_name, self.run_name) if self.sweep_name else \
+            pairing_label(cell_name, self.run_name)
         tags = {"mlflow.parentRunId": self.parent_id, CELL_TAG: cell.key, HASH_TAG: summary.get("hash", ""),
-                STATUS_TAG: summary["status"], **method_tags(cell), **self.source}
+                STATUS_TAG: summary["status"], PAIRING_TAG: pairing, **method_tags(cell), **self.source}
         if summary.get("reason"):
             tags[REASON_TAG] = str(summary["reason"])[:5000]
         if summary.get("n_views") is not None:  # views (or pairs) per cell: the report's table titles say it
             tags[VIEWS_TAG] = str(summary["n_views"])
-        name = child_name(self.names.get(cell.key, cell.key), self.run_name)
+        name = child_name(cell_name, self.run_name)
         run = self.client.create_run(self.experiment_id, run_name=name, tags=tags,
                                      start_time=ms(summary.get("started")))
         now = ms(summary.get("ended")) or int(time.time() * 1000)
@@ -178,16 +200,22 @@ class SweepTracker:
             if summary.get(f"by_{step_key}"):
                 tags[f"gtsweep.step_scale.{step_key}"] = str(step_scale([float(v) for v in summary[f"by_{step_key}"]]))
         tags = [RunTag(k, v) for k, v in tags.items() if k != "mlflow.parentRunId"]
-        params = list(batches(params))
-        # MLflow takes at most 1000 metrics and 100 params per call
-        for index in range(max(len(params), math.ceil(len(metrics) / MAX_BATCH), 1)):
-            self.client.log_batch(run.info.run_id, metrics=metrics[index * MAX_BATCH:(index + 1) * MAX_BATCH],
-                                  params=params[index] if index < len(params) else [],
-                                  tags=tags if index == 0 else [])
-        self._log_files(run.info.run_id, cell, summary, name)
+        try:
+            self._log_batches(run.info.run_id, list(batches(params)), metrics, tags)
+            self._log_files(run.info.run_id, cell, summary, name)
+        except BaseException as e:  # a full artifact store, a locked store: the child is not left RUNNING
+            mark_ended(self.client, run.info.run_id, f"logging the cell failed: {type(e).__name__}: "
+                                                     f"{(str(e).strip().splitlines() or [''])[0][:300]}", "FAILED")
+            raise
         self.client.set_terminated(run.info.run_id, "FINISHED" if summary["status"] != "error" else "FAILED",
                                    end_time=ms(summary.get("ended")))
         self.logged.add((cell.key, summary.get("hash")))
+
+    def _log_batches(self, run_id: str, params: list, metrics: list, tags: list) -> None:
+        """MLflow takes at most 1000 metrics and 100 params per call."""
+        for index in range(max(len(params), math.ceil(len(metrics) / MAX_BATCH), 1)):
+            self.client.log_batch(run_id, metrics=metrics[index * MAX_BATCH:(index + 1) * MAX_BATCH],
+                                  params=params[index] if index < len(params) else [], tags=tags if index == 0 else [])
 
     def _log_files(self, run_id: str, cell, summary: Mapping, name: str) -> None:
         """The cell's per-view rows as ``views.csv`` and, with strengths, its curves as a figure."""
@@ -246,6 +274,8 @@ class SweepTracker:
         for path in artifacts:  # the report: survey tables and plots
             if Path(path).exists():
                 self.client.log_artifact(self.parent_id, str(path), "report")
+        if not outcome.failed:
+            clear_reason(self.client, self.parent_id)
         self.client.set_terminated(self.parent_id, "FAILED" if outcome.failed else "FINISHED")
 
     def ui_hint(self) -> str:
@@ -257,11 +287,12 @@ class SweepTracker:
 
 
 def child_complete(run) -> bool:
-    """A child run that ended with what its cell needs: FINISHED or FAILED, its status tag, and metrics when
-    the cell was evaluated (an NA or failed cell has none)."""
+    """A child run that ended with what its cell needs: FINISHED (FAILED for a failed cell; a child whose logging
+    failed is FAILED with another status tag), its status tag, and metrics when the cell was evaluated (an NA or
+    failed cell has none)."""
     status = run.data.tags.get(STATUS_TAG)
-    return run.info.status in ("FINISHED", "FAILED") and status is not None and \
-        (status != "ok" or bool(run.data.metrics))
+    ended = run.info.status == ("FAILED" if status == "error" else "FINISHED")
+    return ended and status is not None and (status != "ok" or bool(run.data.metrics))
 
 
 def _finite(value) -> bool:
@@ -273,92 +304,12 @@ def _number(value) -> float:
     return math.nan if value is None else float(value)
 
 
-def summaries_from_mlflow(parent_run_id: str, uri: str | None = None) -> list[dict]:
-    """Cell summaries rebuilt from a sweep's MLflow child runs (the report's other source)."""
-    from mlflow.tracking import MlflowClient
-
-    from gtsweep.evaluation import schema
-
-    client = MlflowClient(tracking_uri(None) if uri is None else uri)
-    try:
-        parent = client.get_run(parent_run_id)
-    except Exception as e:
-        raise BadInput(f"no MLflow run '{parent_run_id}' in '{client.tracking_uri}': {str(e).splitlines()[0]}") \
-            from None
-    runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",
-                              max_results=50000)
-    experiment = parent.data.tags.get("gtsweep.experiment")
-    summaries = []
-    for run in runs:
-        params, tags = run.data.params, run.data.tags
-        names = {**params, **{k[len(METHOD_TAG):]: v for k, v in tags.items() if k.startswith(METHOD_TAG)}}
-        methods = {k: names.get(k) for k in ("detector", "selector", "descriptor", "transform")}
-        methods.update({k: names[k] for k in ("matcher", "estimator") if k in names})
-        keys = {summary_name(k): k for k in run.data.metrics}  # runs logged with or without metric prefixes
-        series = {name: schema.parse_series(name) for name in keys}
-        summary = {"key": tags.get(CELL_TAG), "methods": methods, "status": tags.get(STATUS_TAG, "ok"),
-                   "reason": tags.get(REASON_TAG), "experiment": experiment,
-                   "metrics": {k: run.data.metrics[keys[k]] for k in schema.ordered(keys) if not series[k]}}
-        if tags.get(VIEWS_TAG):
-            summary["n_views"] = int(tags[VIEWS_TAG])
-        for name, (metric, step_key) in ((k, v) for k, v in series.items() if v):
-            history = client.get_metric_history(run.info.run_id, keys[name])
-            scale = step_scale([m.step for m in history]) if step_key == "strength" else 1
-            scale = float(tags.get(f"gtsweep.step_scale.{step_key}", scale))
-            steps = summary.setdefault(f"by_{step_key}", {})
-            for m in history:
-                steps.setdefault(repr(m.step / scale), {})[metric] = m.value
-        summaries.append(summary)
-    return sorted(summaries, key=lambda s: s["key"] or "")
-
-
-def config_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict | None:
-    """The resolved configuration a sweep logged on its parent run (``config.yaml``), or None without it."""
-    import tempfile
-
-    import yaml
-    from mlflow.exceptions import MlflowException
-    from mlflow.tracking import MlflowClient
-
-    quiet_mlflow()
-    client = MlflowClient(tracking_uri(None) if uri is None else uri)
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            return yaml.safe_load(Path(client.download_artifacts(parent_run_id, "config.yaml", tmp)).read_text())
-    except (MlflowException, OSError, yaml.YAMLError):  # no such artifact: the report assumes Micro-GPS' scale
-        return None
-
-
-def views_from_mlflow(parent_run_id: str, uri: str | None = None) -> dict:
-    """The per-view rows of a sweep's cells (each child run's ``<cell>.csv`` artifact) by cell key, for the
-    report's intervals and paired tests; cells without the artifact are left out."""
-    import tempfile
-
-    import pandas as pd
-    from mlflow.tracking import MlflowClient
-
-    quiet_mlflow()
-    client = MlflowClient(tracking_uri(None) if uri is None else uri)
-    parent = client.get_run(parent_run_id)
-    runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'",
-                              max_results=50000)
-    views = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for run in runs:
-            key = run.data.tags.get(CELL_TAG)
-            logged = {a.path for a in client.list_artifacts(run.info.run_id)} if key else set()
-            name = next((n for n in (VIEWS_FILE, f"{key}.csv") if n in logged), None)  # older runs: <cell>.csv
-            if name is not None:
-                views[key] = pd.read_csv(client.download_artifacts(run.info.run_id, name, tmp))
-    return views
-
-
 def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
     """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
     quiet_mlflow()
     client, experiment = open_store(cfg, (cfg or {}).get("experiment") or "gtsweep")  # locked first use
     if previous is not None:
-        client.update_run(previous, status="RUNNING")
+        reopen(client, previous)
         return previous
     model_development(client, experiment)
     tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.role": "multirun",
@@ -377,21 +328,5 @@ def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = (),
     if failed:
         mark_ended(client, run_id, failed, "FAILED")
     else:
+        clear_reason(client, run_id)
         client.set_terminated(run_id, "FINISHED")
-
-
-def mark_ended(client, run_id: str, reason: str, status: str) -> str:
-    """Close ``run_id`` with ``status`` and why (``client``: an MlflowClient or a tracking URI). Never raises: the
-    store itself may be what failed; then the returned note says the run is left open for the resume to close
-    ("" when it was closed)."""
-    try:
-        if isinstance(client, str):
-            from mlflow.tracking import MlflowClient
-
-            client = MlflowClient(client)
-        client.set_tag(run_id, REASON_TAG, reason[:5000])
-        client.set_terminated(run_id, status)
-    except Exception as e:  # noqa: BLE001 - a locked or lost store: the resume closes the run
-        return f" (the MLflow run {run_id} could not be marked {status}: " \
-               f"{(str(e).strip().splitlines() or [type(e).__name__])[0][:200]})"
-    return ""

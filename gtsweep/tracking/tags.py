@@ -4,6 +4,7 @@ table's name column."""
 from __future__ import annotations
 
 import getpass
+import re
 from typing import Iterable, Mapping
 
 KIND_TAG = "mlflow.experimentKind"
@@ -106,6 +107,19 @@ def unique_name(client, experiment_id: str, name: str) -> str:
     while (candidate := name if number == 1 else f"{name} ({number})") in taken:
         number += 1
     return candidate
+
+
+#: A cell run's pairing within its sweep: the saved view groups by it (one short label; one sweep's runs apart).
+PAIRING_TAG = "gtsweep.pairing"
+_SEEDS = re.compile(r"(?:^|\s)\+*(?:dataset\.)?seed=\S+")
+
+
+def pairing_label(cell_name: str, sweep_name: str, job_name: str = "") -> str:
+    """What a group of cell runs shares: the cell (``sift·brief·inc``), its sweep (a multirun's run for its jobs)
+    and the job's setting without its seeds, so that the repeats over seeds of one sweep pool and nothing else:
+    ``sift·brief·inc · sweeps=smoke``, ``sift·brief·inc · -m seed=0,1 · matcher=[flann]``."""
+    setting = _SEEDS.sub("", job_name).strip()
+    return f" {SEPARATOR} ".join([cell_name, sweep_name, *([setting] if setting else [])])
 
 
 def child_name(cell_name: str, parent_name: str) -> str:

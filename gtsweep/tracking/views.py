@@ -7,9 +7,12 @@ every address gtsweep prints carries ``workflowType=machine_learning``.
 A saved view of the runs page is an experiment tag ``mlflow.sharedViewState.<key>`` holding
 ``{"name", "createdAt", "updatedAt", "state"}``, ``state`` being the page's search and table settings as JSON
 (what the UI's "Views" menu saves; ``viewStateShareKey=<key>`` in the address opens it). gtsweep saves one,
-"gtsweep: pairings": the cell runs only, grouped by pairing (detector, selector, descriptor, matcher, estimator,
-transform and data set: each group averages its runs over the seeds), with the method, seed and data-set columns
-and the headline metrics; its charts start with the headline metrics (:data:`~gtsweep.tracking.metricnames.SECTIONS`).
+"gtsweep: pairings": the cell runs only, grouped by one short tag, the pairing within its sweep
+(:data:`~gtsweep.tracking.tags.PAIRING_TAG`: ``sift·brief·inc · sweeps=smoke``; a group averages one sweep's repeats
+over seeds, never runs of another sweep), with the method and data-set columns (no seed column: a group's average of
+seeds means nothing) and the headline metrics; its charts start with the headline metrics
+(:data:`~gtsweep.tracking.metricnames.SECTIONS`). What the UI cannot be told (digits shown, the order of its
+generated charts): docs/mlflow.md says what to click.
 """
 from __future__ import annotations
 
@@ -18,12 +21,13 @@ import time
 
 from gtsweep.evaluation import schema
 from gtsweep.tracking.metricnames import SECTIONS
+from gtsweep.tracking.tags import PAIRING_TAG
 
 VIEW_KEY = "gtsweep-pairings"
 VIEW_NAME = "gtsweep: pairings"
 VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 TRAINING_VIEW = "workflowType=machine_learning"
-#: The params a pairing is grouped by, and the columns shown (with the seed).
+#: The method and data-set params shown as columns.
 PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset")
 #: The headline metric of each experiment, and precision (the survey's other main number), as columns.
 HEADLINE_METRICS = tuple(dict.fromkeys([*(schema.HEADLINE[e] for e in schema.EXPERIMENT_ROWS), "precision"]))
@@ -39,10 +43,9 @@ def pairings_state(cell_tag: str) -> dict:
         "searchFilter": f"tags.`{cell_tag}` LIKE '%'",
         "orderByKey": "attributes.start_time",
         "orderByAsc": False,
-        "selectedColumns": [*(_column("params", p) for p in (*PAIRING, "seed")),
+        "selectedColumns": [*(_column("params", p) for p in PAIRING),
                             *(_column("metrics", m) for m in HEADLINE_METRICS)],
-        "groupBy": {"aggregateFunction": "average",
-                    "groupByKeys": [{"mode": "param", "groupByData": p} for p in PAIRING]},
+        "groupBy": {"aggregateFunction": "average", "groupByKeys": [{"mode": "tag", "groupByData": PAIRING_TAG}]},
         "runsHiddenMode": "SHOW_ALL",
         # the chart view: MLflow's generated charts, in sections ordered headline first (kept as given when
         # isAccordionReordered; MLflow would sort the prefixed sections before its "Model metrics")

@@ -17,9 +17,14 @@ import cv2
 
 from gtsweep.stages.surf.feature import NumpySURF
 
-__all__ = ["SURF_create", "NumpySURF", "OpenCVSURF", "opencv_surf_available"]
+__all__ = ["SURF_create", "NumpySURF", "OpenCVSURF", "opencv_surf_available", "implementation_name",
+           "IMPLEMENTATION_VERSION"]
 
 log = logging.getLogger(__name__)
+
+#: Version of the NumPy SURF's numbers: bump it when a change moves any keypoint or descriptor bit (the digests
+#: pinned by tests/test_surf_identity.py), so that no cached or committed row made by older code is reused.
+IMPLEMENTATION_VERSION = 1
 
 
 @functools.lru_cache(maxsize=1)
@@ -30,6 +35,15 @@ def opencv_surf_available() -> bool:
     except (cv2.error, AttributeError):
         return False
     return True
+
+
+def implementation_name() -> str:
+    """Which SURF runs, as the keypoint-cache and reuse keys record it: "opencv" (a nonfree build) or
+    "gtsweep-numpy", with "/<version>" from :data:`IMPLEMENTATION_VERSION` 2 on (version 1's keys stay as
+    they were)."""
+    if opencv_surf_available():
+        return "opencv"
+    return "gtsweep-numpy" + (f"/{IMPLEMENTATION_VERSION}" if IMPLEMENTATION_VERSION > 1 else "")
 
 
 class OpenCVSURF:

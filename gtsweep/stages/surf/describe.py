@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from gtsweep.stages.surf.hessian import box_response, scale_boxes
+from gtsweep.stages.surf.windows import batch_pixels, rotated_windows
 
 F32 = np.float32
 
@@ -38,8 +39,6 @@ UPRIGHT_ANGLE = 270.0
 ORIENTATION_BATCH = 4096
 #: Channels per cv2.resize call when enlarging windows (OpenCV's Python binding takes up to 128 here).
 UPSCALE_CHANNELS = 128
-#: Window pixels per batch when sampling descriptor windows (small enough to stay in cache).
-WINDOW_BATCH_PIXELS = 1 << 15
 
 
 def keypoint_scale(size: np.ndarray) -> np.ndarray:
@@ -165,65 +164,6 @@ def orientations(integral: np.ndarray, x: np.ndarray, y: np.ndarray, size: np.nd
     return angles, valid
 
 
-def _rotated_windows(gray: np.ndarray, pixels: np.ndarray, x, y, angle, win: int) -> np.ndarray:
-    """OpenCV's rotated descriptor windows ``(n, win, win)`` uint8, sampled bilinearly as surf.cpp does.
-
-    Row ``i``, column ``j`` samples ``start + i (sin, cos) + j (cos, -sin)`` with ``sin = -sin(angle)``: row
-    starts advance in float32 steps, columns in float64, as in surf.cpp. The value is
-    ``cvRound(p00 (1-a)(1-b) + p01 a (1-b) + p10 (1-a) b + p11 a b)`` in float32; a sample whose 2x2
-    neighbourhood leaves the image takes the nearest (clamped) pixel. ``pixels`` is ``gray`` as flat float32.
-    """
-    theta = (angle.astype(F32) * F32(np.pi / 180)).astype(np.float64)
-    sin_dir, cos_dir = (-np.sin(theta)).astype(F32), np.cos(theta).astype(F32)
-    offset = F32(-(win - 1) / 2)
-    start_x = x + offset * cos_dir + offset * sin_dir
-    start_y = y - offset * sin_dir + offset * cos_dir
-    row_x = np.cumsum(np.concatenate([start_x[:, None], np.repeat(sin_dir[:, None], win - 1, 1)], 1), 1, F32)
-    row_y = np.cumsum(np.concatenate([start_y[:, None], np.repeat(cos_dir[:, None], win - 1, 1)], 1), 1, F32)
-    steps = np.arange(win, dtype=np.float64)
-    px = row_x.astype(np.float64)[:, :, None] + (steps * cos_dir.astype(np.float64)[:, None])[:, None, :]
-    py = row_y.astype(np.float64)[:, :, None] - (steps * sin_dir.astype(np.float64)[:, None])[:, None, :]
-    ix, iy = np.floor(px), np.floor(py)
-    a = np.subtract(px, ix, out=np.empty(px.shape, F32), casting="same_kind")
-    b = np.subtract(py, iy, out=np.empty(py.shape, F32), casting="same_kind")
-    rows, cols = gray.shape
-    # Positions are monotonic along rows and columns, so the window's corners bound them all.
-    ends = [0, win - 1]
-    corners_x, corners_y = ix[:, ends][:, :, ends], iy[:, ends][:, :, ends]
-    all_inside = (corners_x.min() >= 0 and corners_x.max() < cols - 1
-                  and corners_y.min() >= 0 and corners_y.max() < rows - 1)
-    if not all_inside:
-        inside = (ix >= 0) & (ix < cols - 1) & (iy >= 0) & (iy < rows - 1)
-        ix[~inside] = 0
-        iy[~inside] = 0
-    iy *= cols  # in place, to keep memory traffic down: iy becomes the flat index of the top-left pixel
-    iy += ix
-    index = iy.astype(np.intp)
-    one = F32(1)
-    not_a, not_b = one - a, one - b
-    value = pixels[index]
-    value *= not_a
-    value *= not_b
-    term = pixels[1:][index]  # right neighbour: the same index into shifted views
-    term *= a
-    term *= not_b
-    value += term
-    np.take(pixels[cols:], index, out=term)  # below
-    term *= not_a
-    term *= b
-    value += term
-    np.take(pixels[cols + 1:], index, out=term)  # below right
-    term *= a
-    term *= b
-    value += term
-    window = np.rint(value, out=value).astype(np.uint8)
-    if not all_inside:
-        nearest = gray[np.clip(np.rint(py), 0, rows - 1).astype(np.intp),
-                       np.clip(np.rint(px), 0, cols - 1).astype(np.intp)]
-        window = np.where(inside, window, nearest)
-    return window
-
-
 def _upright_windows(gray: np.ndarray, x, y, win: int) -> np.ndarray:
     """OpenCV's upright windows ``(n, win, win)``: pixel ``(start_x + i, start_y - j)``, clamped (transposed)."""
     offset = F32(-(win - 1) / 2)
@@ -265,13 +205,13 @@ def patches(gray, x, y, angle, size, upright):
     out = np.zeros((len(x), PATCH_SIZE + 1, PATCH_SIZE + 1), np.uint8)
     for win in np.unique(win_sizes):
         members = np.flatnonzero(win_sizes == win)
-        batch = max(1, WINDOW_BATCH_PIXELS // int(win * win))
+        batch = max(1, batch_pixels() // int(win * win))
         for start in range(0, len(members), batch):
             idx = members[start:start + batch]
             if upright:
                 windows = _upright_windows(gray, x[idx], y[idx], int(win))
             else:
-                windows = _rotated_windows(gray, pixels, x[idx], y[idx], angle[idx], int(win))
+                windows = rotated_windows(gray, pixels, x[idx], y[idx], angle[idx], int(win))
             out[idx] = _area_resize(windows)
     return out
 

@@ -21,9 +21,9 @@ import pandas as pd
 
 from gtsweep.evaluation.statistics import spent_alpha
 from gtsweep.evaluation.verdicts import DECIDED
-from gtsweep.orchestration.preset_runs import counts, fraction
+from gtsweep.reproduction.rounds import counts, fraction
 from gtsweep.orchestration.results import METHOD_COLUMNS
-from gtsweep.report.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
+from gtsweep.reproduction.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries
 
@@ -57,7 +57,7 @@ class Status:
 
 class Sequential:
     """The state of every finding across rounds; :meth:`update` is the ``needed`` callback of
-    :func:`gtsweep.orchestration.preset_runs.run_rounds`."""
+    :func:`gtsweep.reproduction.rounds.run_rounds`."""
 
     def __init__(self, alpha: float, findings: list[Hypothesis] = FINDINGS, information=fraction):
         self.alpha, self.information = alpha, information  # information(preset, counts): fraction t in (0, 1]
@@ -73,8 +73,9 @@ class Sequential:
                 continue
             preset = s.hypothesis.preset
             if preset not in data:
-                frames, _ = survey_variant({preset: frame(load_summaries(run["output"]))})
-                data[preset] = (frames, {preset: load_views(run["output"])})
+                summaries, views = run_data(run)
+                frames, _ = survey_variant({preset: frame(summaries)})
+                data[preset] = (frames, {preset: views})
             t = self.information(preset, run["counts"])
             nominal = spent_alpha(self.alpha, t) - s.spent
             s.finding = check(s.hypothesis, *data[preset], nominal)
@@ -92,13 +93,21 @@ class Sequential:
 
 
 
+def run_data(run: dict, views: bool = True) -> tuple[list[dict], dict | None]:
+    """A preset run's cell summaries and per-view rows: given with the run (read from the reproduction's state),
+    else read from its output directory."""
+    if "summaries" in run:
+        return run["summaries"], run.get("views")
+    return load_summaries(run["output"]), load_views(run["output"]) if views else None
+
+
 def needed_cells(open_findings: list[Hypothesis], latest: dict[str, dict]) -> dict[str, list[dict]]:
     """Per preset of ``open_findings``, the methods of the cells they read among the cells of its newest run."""
     needed = {}
     for preset in dict.fromkeys(h.preset for h in open_findings):
         if preset not in latest:
             continue
-        cells = frame(load_summaries(latest[preset]["output"]))
+        cells = frame(run_data(latest[preset], views=False)[0])
         keep = pd.Series(False, index=cells.index)
         for hypothesis in (h for h in open_findings if h.preset == preset):
             keep |= hypothesis.needs(cells).to_numpy()

@@ -1,9 +1,9 @@
-"""Write ``docs/REPRODUCTION.md`` from the survey's table presets: ``python -m gtsweep.report.reproduce``.
+"""Write ``docs/REPRODUCTION.md`` from the survey's table presets: ``python -m gtsweep.reproduction.command``.
 
-The runs themselves are :mod:`gtsweep.orchestration.preset_runs`'s (one size, or rounds with ``--size decide``);
+The runs themselves are :mod:`gtsweep.reproduction.rounds`'s (one size, or rounds with ``--size decide``);
 this module is the thin command line and the document. The survey's tables are rebuilt beside the paper's
-numbers; each of the survey's findings is a pre-stated hypothesis (:mod:`gtsweep.report.findings`) judged on
-the same images or pairs, with ``--size decide`` under the sequential design of :mod:`gtsweep.report.sequential`;
+numbers; each of the survey's findings is a pre-stated hypothesis (:mod:`gtsweep.reproduction.findings`) judged on
+the same images or pairs, with ``--size decide`` under the sequential design of :mod:`gtsweep.reproduction.sequential`;
 each table names the entries tied with its best. Hand-written explanations of differences are read from
 ``docs/reproduction_notes.md`` when it exists.
 """
@@ -26,60 +26,22 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import SIGNALS, Interrupted, on_signal
 from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
-from gtsweep.orchestration import preset_runs as runs
-from gtsweep.orchestration.run_record import RunRecord
-from gtsweep.report.findings import check_findings, survey_variant
+from gtsweep.reproduction import rounds as runs
+from gtsweep.reproduction.run_record import RunRecord
+from gtsweep.reproduction.findings import check_findings, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import annotate, load_scale
-from gtsweep.report.sequential import Sequential
+from gtsweep.reproduction.sequential import Sequential
 from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
 from gtsweep.report.tuning import tuning_table
+from gtsweep.reproduction.tuned import TUNED, tuned_digest, tuned_line, tuning_fingerprint
+from gtsweep.reproduction.document import cell_counts, tally, ties_row
 
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])
-TUNED = CONF_DIR / "detector" / "tuned"
 INTERIM = ("**Interim document: this reproduction is not finished.** It shows the rounds finished so far "
            "(`--document-only` on an unfinished run); the same `make reproduce` resumes it. Each verdict is its "
            "finding's last look; a finding marked *still open* may be decided by a later round.")
-#: ``make tune``'s data set: dataset=survey with its optimisation views only.
-TUNING_DATA = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0}
-
-
-def tuning_fingerprint() -> str:
-    """The fingerprint of the data set ``make tune`` tunes on (dataset=survey, optimisation views only)."""
-    import yaml
-
-    from gtsweep.datasets import load_dataset
-
-    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
-    return load_dataset({**options, **TUNING_DATA}).fingerprint()
-
-
-def tuned_fingerprints(directory: Path = TUNED) -> dict[str, str]:
-    """Each tuned detector file's data set fingerprint, from its header ("Data set fingerprint X.")."""
-    found = {}
-    for path in sorted(Path(directory).glob("*.yaml")):
-        match = re.search(r"Data set fingerprint ([0-9a-f]+)", path.read_text())
-        found[path.stem] = match.group(1) if match else "none"
-    return found
-
-
-def tuned_line(expected: str | None, directory: Path = TUNED) -> str:
-    """What the document states about the detectors' tuned parameters: on which data set they were tuned."""
-    found = tuned_fingerprints(directory)
-    if expected is None:
-        return ""
-    stale = {k: v for k, v in found.items() if v != expected}
-    if not stale:
-        return (f"Detector parameters: all {len(found)} tuned files were tuned on this data set's optimisation "
-                f"views (fingerprint {expected}).")
-    by = {}
-    for name, fingerprint in stale.items():
-        by.setdefault(fingerprint, []).append(name)
-    which = "; ".join(f"{', '.join(names)} on {fp}" for fp, names in by.items())
-    return (f"**Detector parameters not tuned on this data set**: {len(stale)} of {len(found)} tuned files carry "
-            f"another data set's fingerprint ({which}); `make tune` on dataset=survey's optimisation views "
-            f"(fingerprint {expected}) re-tunes them.")
 
 
 def _latest(results: list[dict]) -> list[dict]:
@@ -112,11 +74,13 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
     every finding's verdict with its test, margin and numbers, and every table with the entries tied with its
     best (each preset's newest run)."""
     assets = docs / "reproduction"
-    shutil.rmtree(assets, ignore_errors=True)
-    assets.mkdir(parents=True)
+    assets.mkdir(parents=True, exist_ok=True)
+    for old in assets.iterdir():  # the generated tables and plots; the state and references in folders stay
+        if old.is_file():
+            old.unlink()
     latest = _latest(results)
     scale = load_scale(latest[0]["output"] if latest else docs)  # the presets share one data set
-    command = f"python -m gtsweep.report.reproduce --size {size}" + (f" --alpha {alpha:g}" if alpha != ALPHA else "")
+    command = f"python -m gtsweep.reproduction.command --size {size}" + (f" --alpha {alpha:g}" if alpha != ALPHA else "")
     rounds = any("round" in r for r in results)
     lines = ["# Reproducing the survey", "",
              f"Generated by `{command}` (`make reproduce`) on the embedded rendered data set (the table presets "
@@ -149,7 +113,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
         summaries[r["preset"]], views[r["preset"]] = load_summaries(r["output"]), load_views(r["output"])
         per_cell = cell_counts(summaries[r["preset"]], views[r["preset"]])
         per_cell.to_csv(assets / f"{r['preset']}__cell_counts.csv", index=False)
-        counted.append(f"| {r['preset']} | {_tally(per_cell)} |")
+        counted.append(f"| {r['preset']} | {tally(per_cell)} |")
         for table in build_tables(summaries[r["preset"]], views[r["preset"]], alpha):
             if table.name != r["preset"] and not table.name.startswith(f"{r['preset']}_"):  # one per variant
                 continue  # e.g. the Table 2 sweep also fills Table 3; its own preset shows it
@@ -157,7 +121,7 @@ def write_document(results: list[dict], size: str, docs: Path, alpha: float = AL
             tables += ["", table.markdown(note=True)]
             (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
             if table.ties is not None and table.ties.best:
-                ties.append(_ties_row(table))
+                ties.append(ties_row(table))
         for png in sorted(_report_dir(r, summaries[r["preset"]], views[r["preset"]], alpha).glob("*.png")):
             target = assets / f"{r['preset']}__{png.name}"
             shutil.copy(png, target)
@@ -195,26 +159,6 @@ def _items(r: dict) -> str:
     return f" {r['items_evaluated']} ({r['items_reused']}) |" if r.get("items_evaluated") is not None else " - |"
 
 
-def cell_counts(summaries: list[dict], views: dict) -> pd.DataFrame:
-    """Per cell: its key, status, images or pairs, and images or pairs per texture (from its per-view rows)."""
-    rows = []
-    for s in summaries:
-        cell = views.get(s.get("key"))
-        textures = cell["texture"].nunique() if cell is not None and len(cell) else 0
-        n = int(s.get("n_images") or 0)
-        rows.append({"cell": s.get("key"), "status": s.get("status"), "images_or_pairs": n,
-                     "per_texture": round(n / textures) if textures else None})
-    return pd.DataFrame(rows, columns=["cell", "status", "images_or_pairs", "per_texture"])
-
-
-def _tally(per_cell: pd.DataFrame) -> str:
-    known = per_cell.dropna(subset=["per_texture"])
-    found = known.groupby("per_texture").size().sort_index(ascending=False)
-    text = "; ".join(f"{int(n)}: {k} cells" for n, k in found.items())
-    rest = len(per_cell) - len(known)
-    return text + (f"; {rest} cells without rows (not applicable or failed)" if rest else "")
-
-
 def _report_dir(r: dict, summaries: list[dict], views: dict, alpha: float) -> Path:
     """The plots of a run; of every cell when the round ran only some of them (rebuilt from all its cells)."""
     if r.get("extra_cells") is None or len(summaries) <= r["cells"]:
@@ -226,13 +170,6 @@ def _report_dir(r: dict, summaries: list[dict], views: dict, alpha: float) -> Pa
     return out
 
 
-def _ties_row(table) -> str:
-    t = table.ties
-    untested = f"; {len(t.untested)} without per-view rows" if t.untested else ""
-    return (f"| {table.name} | {t.best} ({t.metric} {t.best_value:.2f}) | {len(t.tied)} of {len(t.tests)}{untested} "
-            f"| {', '.join(t.tied) or '-'} |")
-
-
 def findings_section(findings: list, variant: str, alpha: float, sequential: Sequential | None = None,
                      results: list[dict] = ()) -> list[str]:
     """The findings table: per finding its verdict, test, margin, n, intervals, correction (and with rounds: the
@@ -242,10 +179,10 @@ def findings_section(findings: list, variant: str, alpha: float, sequential: Seq
     for f in findings:
         counts[f.verdict] = counts.get(f.verdict, 0) + 1
     tally = ", ".join(f"{n} {verdict}" for verdict, n in sorted(counts.items(), key=lambda kv: -kv[1]))
-    design = (" Rounds under the sequential design of `gtsweep/report/sequential.py` (Lan-DeMets Pocock-type "
+    design = (" Rounds under the sequential design of `gtsweep/reproduction/sequential.py` (Lan-DeMets Pocock-type "
               f"alpha spending, total alpha = {alpha:g} per verdict kind per finding)." if sequential else "")
     head = ["", "## The survey's findings on our data", "",
-            f"{tally}. Each finding is a hypothesis fixed before the results (`gtsweep/report/findings.py`, "
+            f"{tally}. Each finding is a hypothesis fixed before the results (`gtsweep/reproduction/findings.py`, "
             "`docs/statistics_design.md`): *holds* = the survey's claim shown, *fails* = its opposite shown (Holm "
             "across the finding's comparisons), *equivalent* = equal within the margin, *undecided* = the data "
             f"cannot tell; one-sided tests at alpha = {alpha:g}, intervals at 1 - 2 alpha.{design}"
@@ -281,14 +218,6 @@ def _more(finding) -> str:
     return f" (~{math.ceil(need)} images or pairs would decide it at the observed effect, now {finding.n})"
 
 
-def tuned_digest(directory: Path = TUNED) -> str:
-    """A digest of the tuned detector files: a reproduction resumed after re-tuning would mix parameters."""
-    digest = hashlib.sha256()
-    for path in sorted(Path(directory).glob("*.yaml")):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
 def _resumed(results: list[dict]) -> str:
     """How often the reproduction was interrupted and resumed (its wall time includes the cut attempts)."""
     cut = sum(r.get("attempts", 1) - 1 for r in results)
@@ -313,7 +242,7 @@ def open_progress(work: Path, plan: dict, fresh: bool) -> RunRecord:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gtsweep.report.reproduce", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m gtsweep.reproduction.command", description=__doc__.splitlines()[0])
     parser.add_argument("--size", choices=CHOICES, default="decide",
                         help="a fixed size, or `decide`: rounds of growing counts until every finding is decided")
     parser.add_argument("--presets", nargs="*", default=list(PRESETS), choices=PRESETS)
@@ -330,6 +259,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 0 < args.alpha < 1:
         parser.error(f"--alpha must be in (0, 1), not {args.alpha}")
+    if args.size == "decide" and not args.document_only:  # the sequential run lives in its committed state now
+        from gtsweep.reproduction.cli import main as state_run
+
+        return state_run(["collect"]) or state_run(["document"])
     work = Path(args.work).resolve()
     record = work / "measurements.json"
     if args.document_only:

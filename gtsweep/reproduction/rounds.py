@@ -3,7 +3,7 @@
 Each preset runs as its own ``python -m gtsweep`` process; its wall time, peak memory (resident memory of its
 whole process tree, sampled), keypoint cache hit rate and number of MLflow runs are recorded. In rounds
 (:data:`ROUNDS`), round k runs only the cells that ``needed`` (the caller's judgement of which findings are
-still undecided and which cells they read, see :mod:`gtsweep.report.sequential`) names, at round k's counts per
+still undecided and which cells they read, see :mod:`gtsweep.reproduction.sequential`) names, at round k's counts per
 texture: a preset's grid is cut to them with ``pairings``, ``++selector_for`` and ``transform`` overrides
 (:func:`restriction`). Each round's run of a preset starts from a copy of its previous run's cells (:func:`carry`):
 the cells it does not run stay at the count they last reached, and the cells it runs keep the rows of the images
@@ -24,8 +24,8 @@ from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.memory import PeakMemory
-from gtsweep.orchestration import task_costs
-from gtsweep.orchestration.run_record import RunRecord, copy_absent
+from gtsweep.reproduction import task_costs
+from gtsweep.reproduction.run_record import RunRecord, copy_absent
 
 PRESETS = ("table2_selectors", "table3_detectors", "table4_incremental", "table5_absolute", "table6_pairings",
            "table7_reference_features")
@@ -143,7 +143,7 @@ def run_rounds(presets, needed: Callable[[int, dict[str, dict]], dict[str, list[
     (``latest``: each preset's newest measurements) names the cells round k + 1 runs, per preset the methods of
     each cell (None: all of them; a set of preset names: all of theirs); stops when it names none or after the
     last round. Returns every run's measurements with its round, counts, cells asked for and extra cells run.
-    With a ``record`` (:class:`~gtsweep.orchestration.run_record.RunRecord`), the runs it holds as finished are
+    With a ``record`` (:class:`~gtsweep.reproduction.run_record.RunRecord`), the runs it holds as finished are
     taken from it (``needed`` judges them again, as it did), and each finished run is added to it."""
     uri, cache = f"sqlite:///{work / 'mlflow.db'}", work / "cache"
     runs, latest, wanted = [], {}, dict.fromkeys(presets)

@@ -1,0 +1,41 @@
+"""Checks before trusting committed rows on this machine: the renderer gives the same bytes for a sample of the
+recorded images and pairs (their fingerprints hold the bytes' digest), else one line says so."""
+from __future__ import annotations
+
+import yaml
+
+from gtsweep.core.errors import BadInput
+from gtsweep.core.paths import CONF_DIR
+from gtsweep.datasets import load_dataset
+from gtsweep.orchestration.view_reuse import item_fingerprints
+from gtsweep.reproduction.state import State, item_number
+
+
+def sample_items(state: State, per_split: int = 1) -> list[tuple[str, str, str]]:
+    """(split, item, recorded fingerprint) of the first recorded items of each split."""
+    found, seen = [], {}
+    for chunk in state.chunks:
+        split = chunk["split"]
+        for item, fingerprint in sorted(chunk.get("items", {}).items()):
+            if fingerprint and seen.get(split, 0) < per_split:
+                found.append((split, item, fingerprint))
+                seen[split] = seen.get(split, 0) + 1
+    return found
+
+
+def rerender(state: State, cache_dir: str, per_split: int = 1) -> int:
+    """Render each sampled item alone (its texture, its window) and compare its fingerprint with the record;
+    returns how many were checked. A mismatch is one line (:class:`BadInput`)."""
+    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
+    checked = 0
+    for split, item, recorded in sample_items(state, per_split):
+        texture, number = item.split("/")[0], item_number(item)
+        counts = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0, f"n_{split}": number + 1}
+        dataset = load_dataset({**options, **counts, "textures": [texture], "cache_dir": cache_dir,
+                                "skip_first": {split: number}})
+        here = item_fingerprints(dataset, split).get(item)
+        if here != recorded:
+            raise BadInput(f"the renderer here gives other bytes for {item} than the committed state records "
+                           f"(fingerprint {here} vs {recorded}): the rows cannot be trusted on this machine")
+        checked += 1
+    return checked

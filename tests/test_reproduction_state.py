@@ -1,0 +1,103 @@
+"""The reproduction's portable state: chunks of rows on windows of images, read back as the cells of one run at
+the full count (rows and every summary metric equal, timings aside), restricted to a prefix for an earlier look,
+and restored into an empty work directory."""
+import json
+
+import pandas as pd
+import pytest
+
+from gtsweep.core.errors import BadInput
+from gtsweep.reproduction import rounds as preset_runs
+from gtsweep.report.samples import load_views
+from gtsweep.report.tables import load_summaries
+from gtsweep.reproduction import state as states
+from gtsweep.reproduction.collect import collect, done_units
+from gtsweep.reproduction.design import Unit, design_digest, rebuild_units
+
+SMALL = ["dataset.textures=[gravel,wood]", "dataset.view_size=[256,192]", "detector=[tuned/orb]",
+         "transform=[rotation]", "runner.backend=serial"]
+PLAN = {"textures": ["gravel", "wood"], "design": "test"}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("reproduction")
+    first = Unit("rebuild", "table3_detectors", 0, 1)
+    collect([first], root / "state", root / "work", PLAN, extra=SMALL)
+    keys = tuple(k for k in states.load(root / "state").presets["table3_detectors"] if "__nms__" in k)
+    second = Unit("rebuild", "table3_detectors", 1, 3, keys)
+    ran = collect([first, second], root / "state", root / "work", PLAN, extra=SMALL)
+    single = preset_runs.run_preset("table3_detectors", ["dataset=survey", "dataset.n_synthetic=3",
+                                                         "dataset.n_incremental=0", "dataset.n_absolute=0", *SMALL],
+                                    root / "single", f"sqlite:///{root / 'single.db'}", root / "work" / "cache")
+    return root, keys, ran, single["output"]
+
+
+def _no_timings(frame):
+    return frame.drop(columns=[c for c in frame if c.startswith("t_")])
+
+
+@pytest.mark.slow
+def test_chunks_equal_one_run_at_the_full_count(run):
+    root, keys, ran, single = run
+    assert ran == 1  # the first unit was in the state already: not run again
+    held = states.load(root / "state")
+    views, summaries = load_views(single), {s["key"]: s for s in load_summaries(single)}
+    mine = held.views("table3_detectors")
+    mine_summaries = {s["key"]: s for s in held.summaries("table3_detectors")}
+    for key in keys:
+        pd.testing.assert_frame_equal(_no_timings(mine[key]), _no_timings(views[key]), check_dtype=False)
+        theirs = {k: v for k, v in summaries[key]["metrics"].items() if not k.startswith("t_")}
+        assert {k: mine_summaries[key]["metrics"][k] for k in theirs} == theirs
+
+
+@pytest.mark.slow
+def test_targeted_rows_count(run):
+    """Each chunk holds exactly its cells on its window: 1 image per texture for every cell, then images 1-2 of
+    the NMS cells only (rows per image: the transform's strengths)."""
+    root, keys, _, _ = run
+    records = [json.loads(p.read_text()) for p in sorted((root / "state" / "chunks").glob("*.json"))]
+    assert [r["window"] for r in records] == [[0, 1], [1, 3]]
+    assert set(records[1]["cells"]) == set(keys) and len(records[0]["cells"]) == 2 * len(keys)
+    held = states.load(root / "state")
+    images = {k: sorted(set(v["image"])) for k, v in held.views("table3_detectors").items()}
+    for key in keys:
+        assert images[key] == [f"{t}/synthetic/00{i}" for t in ("gravel", "wood") for i in range(3)]
+    assert all(len(v) == 2 for k, v in images.items() if k not in keys)
+    earlier = held.views("table3_detectors", limit=1)
+    assert all(sorted(set(v["image"])) == ["gravel/synthetic/000", "wood/synthetic/000"] for v in earlier.values())
+
+
+@pytest.mark.slow
+def test_restore_into_an_empty_directory(run, tmp_path):
+    root, keys, _, single = run
+    held = states.load(root / "state")
+    (written,) = states.restore(held, tmp_path)
+    restored = load_views(written)
+    for key in keys:
+        pd.testing.assert_frame_equal(_no_timings(restored[key]), _no_timings(load_views(single)[key]),
+                                      check_dtype=False)
+    assert done_units(root / "state") == {"rebuild/table3_detectors/0-1/all", "rebuild/table3_detectors/1-3/1cells"}
+
+
+def test_another_plan_is_refused(tmp_path):
+    states.write_plan(tmp_path, PLAN)
+    states.write_plan(tmp_path, PLAN)  # the same plan again: fine
+    with pytest.raises(BadInput, match="differs in: design"):
+        states.write_plan(tmp_path, {**PLAN, "design": "other"})
+
+
+def test_rebuild_units_follow_the_recorded_counts():
+    """The rebuild takes each cell to the count round 5 recorded, in windows ending at the rounds' counts."""
+    units = rebuild_units()
+    table3 = [u for u in units if u.preset == "table3_detectors"]
+    assert [(u.start, u.stop) for u in table3] == [(0, 1), (1, 4), (4, 8), (8, 12), (12, 16)]
+    assert table3[0].cells is None and all(len(u.cells) == 52 for u in table3[1:])
+    table5 = [u for u in units if u.preset == "table5_absolute"]
+    assert [(u.start, u.stop, len(u.cells or ())) for u in table5] == [(0, 6, 0), (6, 12, 101), (12, 25, 28),
+                                                                         (25, 50, 28)]
+    assert table3[1].overrides()[-1] == "dataset.skip_first={synthetic:1}"
+
+
+def test_design_digest_reads_the_amendment():
+    assert len(design_digest()) == 16
