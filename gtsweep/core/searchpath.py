@@ -192,6 +192,9 @@ class Configs:
     def __init__(self, entries):
         from hydra._internal.sources_registry import SourcesRegistry
 
+        from gtsweep.core.paths import mount_checkout_configs
+
+        mount_checkout_configs()  # a checkout's sweeps/ under gtsweep.conf, as in the wheel (before it is imported)
         register_sources()
         self.entries = tuple(entries)
         self.sources = [SourcesRegistry.instance().resolve(entry.split("://")[0])("gtsweep", entry)
