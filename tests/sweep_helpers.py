@@ -106,3 +106,17 @@ def mlflow_server(uri: str, cwd: Path, *extra: str, timeout: float = 180) -> Ite
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=60)
+
+
+def checked_jobs(args: list[str], tmp_path: Path, monkeypatch) -> list[list[str]]:
+    """Run ``python -m gtsweep -m ARGS`` in ``tmp_path`` with a task that runs nothing: the sweeper's checks of
+    every job (a mistake: SystemExit 2), and the overrides of the jobs it launched."""
+    import gtsweep.cli.app
+    from gtsweep.cli import main
+    from hydra.core.hydra_config import HydraConfig
+
+    launched = []
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(gtsweep.cli.app, "app", lambda cfg: launched.append(list(HydraConfig.get().overrides.task)))
+    main(["-m", *args, "mlflow.enabled=false", "hydra/hydra_logging=none", "hydra/job_logging=none"])
+    return launched

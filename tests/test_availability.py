@@ -71,17 +71,17 @@ def test_a_name_the_registry_does_not_know_counts_as_runnable(no_torch):
 
 
 def test_all_leaves_the_learned_methods_out_in_one_line(no_torch, capsys):
-    expanded = cli.expand_all(["detector=all", "descriptor=[sift]", "matcher=all"])
-    detectors = expanded[0].removeprefix("detector=[").rstrip("]").split(",")
+    cfg = cli.compose_config(["detector=all", "descriptor=[sift]", "matcher=all"])
+    detectors = list(cfg.detector)
     assert {"aliked_n16", "aliked_n16rot", "disk"}.isdisjoint(detectors) and {"sift", "xfeat", "msd"} <= set(detectors)
-    assert expanded[1:] == ["descriptor=[sift]", "matcher=[bf_ratio,flann,mutual_nn]"]
+    assert list(cfg.descriptor) == ["sift"] and list(cfg.matcher) == ["bf_ratio", "flann", "mutual_nn"]
     assert capsys.readouterr().err == f"gtsweep: note: 'all' leaves out aliked_n16, aliked_n16rot, disk, lightglue: " \
                                       f"{LACKS_ALL}\n"
 
 
 def test_naming_a_learned_method_is_refused_in_one_line(no_torch):
     with pytest.raises(GtsweepError) as refused:
-        cli.prepare(["detector=[sift,disk]", "descriptor=[sift]"])
+        cli.compose_config(["detector=[sift,disk]", "descriptor=[sift]"])
     assert str(refused.value) == f"detector 'disk' cannot run: {LACKS_ALL}"
     with pytest.raises(GtsweepError, match=f"^matcher 'lightglue' cannot run: {LACKS_ALL}$"):
         MATCHERS.get("lightglue").build()

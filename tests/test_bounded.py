@@ -156,7 +156,7 @@ def test_leftover_ray_processes_are_this_commands_descendants_or_name_its_sessio
     their command line or their open files) and began after it, are ended, whatever their process group; another
     session's (a cluster started with ``ray start``, another command's), a non-Ray child, a process older than
     this one and this process itself are not."""
-    from gtsweep.cli.lifecycle import leftover_ray_processes
+    from gtsweep.orchestration.cluster import leftover_ray_processes
 
     me, group, ray_dir = os.getpid(), os.getpgrp(), "/venv/site-packages/ray"
     mine, theirs = f"session_2026-11-24_18-39-06_293471_{me}", f"session_2026-11-24_18-39-06_293471_{me}1"

@@ -1,5 +1,6 @@
 """The command line's own pieces on Hydra's: near-miss hints, ./tuned serving tuned method files only, malformed
-YAML named by file:line, Hydra's flags between overrides, settings of options that are not selected."""
+YAML named by file:line, Hydra's flags between overrides (read by Hydra's own parser), settings of options that
+are not selected."""
 from __future__ import annotations
 
 import pytest
@@ -34,9 +35,9 @@ def test_a_hydra_flag_may_stand_between_overrides(capsys, monkeypatch, tmp_path)
     gtsweep_main(["detector=[orb]", "--cfg", "job", "seed=3"])
     printed = capsys.readouterr().out
     assert "seed: 3" in printed and "orb:" in printed and "sift:" not in printed.split("selector:")[0]
-    invocation = search.parse(["detector=[orb]", "--cfg", "job", "descriptor=[orb]", "-m", "seed=0,1"])
-    assert invocation.overrides == ("detector=[orb]", "descriptor=[orb]", "seed=0,1") and invocation.multirun
-    assert invocation.argv == ["detector=[orb]", "descriptor=[orb]", "seed=0,1", "--cfg", "job", "-m"]
+    args = search.hydra_args(["detector=[orb]", "--cfg", "job", "descriptor=[orb]", "-m", "seed=0,1"])
+    assert args.overrides == ["detector=[orb]", "descriptor=[orb]", "seed=0,1"] and args.multirun
+    assert args.cfg == "job"  # Hydra's own parser read it: gtsweep keeps no table of Hydra's flags
 
 
 def test_malformed_yaml_in_a_config_dir_is_named_by_file_and_line(tmp_path, capsys):
@@ -59,24 +60,11 @@ def test_the_working_directorys_tuned_serves_tuned_method_files_only(tmp_path, m
         "factory: subprocess.Popen\norientation: true\nparams: {args: 'id > PWNED', shell: true}\n")
     (tmp_path / "tuned" / "detector" / "tuned" / "sift.yaml").write_text(
         "# @package detector\nsift:\n  params: {contrastThreshold: 0.031}\n")
-    assert "planted" not in cli.options("detector")
+    assert "planted" not in search.options("detector")
     cfg = cli.compose_config(["sweeps=smoke"])
     assert "planted" not in cfg.detector and "sift" in cfg.detector
     assert cli.compose_config(["detector=[tuned/sift]"]).detector.sift.params.contrastThreshold == 0.031
     assert not (tmp_path / "PWNED").exists()
-
-
-def test_gtsweeps_reading_of_hydras_flags_matches_hydras_parser():
-    """gtsweep parses Hydra's command line without Hydra's private parser; this holds the two side by side."""
-    from hydra._internal.utils import get_args_parser  # the test may look inside Hydra; the package does not
-
-    def described(parser):
-        return {tuple(sorted(a.option_strings)): (a.nargs, a.const, tuple(a.choices or ()), a.default is False)
-                for a in parser._actions if a.option_strings}
-
-    theirs, ours = described(get_args_parser()), described(search.hydra_flags())
-    theirs[("--version",)] = ours[("--version",)]  # Hydra prints its version; gtsweep only needs to skip the flag
-    assert ours == theirs
 
 
 def test_a_config_planted_in_the_working_directorys_tuned_is_refused_in_one_line(tmp_path, monkeypatch, capsys):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import tomllib
-from sweep_helpers import cli_env, compose_config, tiny_overrides
+from sweep_helpers import checked_jobs, cli_env, compose_config, tiny_overrides
 
 from gtsweep.cli import overrides as cli
 from gtsweep.cli import search
@@ -60,25 +60,25 @@ def test_a_detector_declared_in_yaml_sweeps_beside_a_package_detector(user_conf,
     assert build_grid(cfg).detectors["sift"]["params"]["contrastThreshold"] == 0.02
 
 
-def test_user_configs_are_valid_choices(user_conf):
-    args = ["--config-dir", str(user_conf), "detector=all"]
-    (expanded,) = [a for a in cli.expand_all(args) if a.startswith("detector=")]
-    assert "my_star" in expanded and "sift" in expanded
-    # Hydra's sweeper globs over its main directory only: gtsweep expands a glob over the search path itself
-    assert cli.expand_all(["-m", "--config-dir", str(user_conf), "detector=glob(my_*)"])[0] == "detector=my_star"
-    with pytest.raises(BadInput, match=r"'detector=glob\(zz\*\)' matches no detector"):
-        cli.expand_all(["-m", "detector=glob(zz*)"])
+def test_user_configs_are_valid_choices(user_conf, tmp_path, monkeypatch):
+    cfg = compose_config(["detector=all"], config_dir=str(user_conf))  # every option on the search path
+    assert "my_star" in cfg.detector and "sift" in cfg.detector and "all" not in cfg.detector
+    # Hydra's own glob lists its main directory only: gtsweep's sweeper globs over the search path
+    jobs = checked_jobs(["--config-dir", str(user_conf), "detector=glob(my_*)"], tmp_path, monkeypatch)
+    assert [job[0] for job in jobs] == ["detector=my_star"]
+    with pytest.raises(SystemExit) as exit_info:
+        checked_jobs(["detector=glob(zz*)"], tmp_path, monkeypatch)
+    assert exit_info.value.code == 2
     with pytest.raises(UnknownMethod, match=r"unknown detector 'my_starr'; valid choices: .*my_star"):
-        cli.prepare(["--config-dir", str(user_conf), "detector=[my_starr]"])
+        compose_config(["detector=[my_starr]"], config_dir=str(user_conf))
     with pytest.raises(BadInput, match="detector 'my_star' has no parameter 'size'; its parameters: maxSize"):
-        cli.prepare(["--config-dir", str(user_conf), "detector=[my_star]", "detector.my_star.params.size=3"])
-    prepared = cli.prepare(["detector=[sift,my_star]", "--config-dir", str(user_conf),
-                            "detector.my_star.params.maxSize=3"])
-    assert "++detector.my_star.params.maxSize=3" in prepared  # declared in YAML: keyed by name after composing
-    with pytest.raises(BadInput, match="detector 'my_star' is not selected"):  # Hydra would refuse it later
-        cli.prepare(["detector=[sift]", "--config-dir", str(user_conf), "detector.my_star.params.maxSize=3"])
+        compose_config(["detector=[my_star]", "detector.my_star.params.size=3"], config_dir=str(user_conf))
+    cfg = compose_config(["detector=[sift,my_star]", "detector.my_star.params.maxSize=3"], config_dir=str(user_conf))
+    assert cfg.detector.my_star.params.maxSize == 3  # declared in YAML: keyed by its name when Hydra loads it
+    with pytest.raises(BadInput, match="detector 'my_star' is not selected"):
+        compose_config(["detector=[sift]", "detector.my_star.params.maxSize=3"], config_dir=str(user_conf))
     with pytest.raises(UnknownMethod):  # without the user's directory it does not exist
-        cli.prepare(["detector=[my_star]"])
+        compose_config(["detector=[my_star]"])
 
 
 @pytest.mark.parametrize("node, message", [
@@ -115,23 +115,22 @@ def test_descriptors_declared_in_yaml_need_a_known_norm():
     assert method.norm == "hamming" and method.excluded_detectors == {"sift": "scales"}
 
 
-def test_only_the_overrides_are_touched():
-    args = ["--cfg", "job", "detector=all", "-m", "seed=1", "--config-dir", "x"]
-    expanded = cli.expand_all(args)  # the overrides as one run, then Hydra's flags in their order
-    assert expanded[1:] == ["seed=1", "--cfg", "job", "-m", "--config-dir", "x"]
-    assert expanded[0].startswith("detector=[agast,")
-    assert cli.prepare(["-sc", "install=bash"]) == ["-sc", "install=bash"]  # shell completion: Hydra's own
-    assert search.parse(["-sc", "install=bash"]).passthrough
-    invocation = search.parse(["detector=[sift]", "--info", "searchpath"])
-    assert invocation.overrides == ("detector=[sift]",) and not invocation.multirun
+def test_hydras_own_parser_reads_the_command_line():
+    args = search.hydra_args(["--cfg", "job", "detector=all", "-m", "seed=1", "--config-dir", "x"])
+    assert args.overrides == ["detector=all", "seed=1"] and args.cfg == "job" and args.multirun
+    assert args.config_dir == "x"
+    args = search.hydra_args(["detector=[sift]", "--info", "searchpath"])
+    assert args.overrides == ["detector=[sift]"] and args.info == "searchpath" and not args.multirun
 
 
 def test_a_users_searchpath_keeps_gtsweeps_entries(user_conf):
-    (prepared,) = [a for a in cli.prepare([f"hydra.searchpath=[file://{user_conf}]"]) if a.startswith("hydra.")]
-    assert prepared == f"hydra.searchpath=[file://{user_conf},tuned://tuned,pkg://gtsweep.conf]"
-    assert search.search_path([f"hydra.searchpath=[file://{user_conf}]"]) == (
-        search.PRIMARY, f"file://{user_conf}", "tuned://tuned", "pkg://gtsweep.conf")
-    assert "my_star" in cli.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
+    args = search.hydra_args([f"hydra.searchpath=[file://{user_conf}]"])
+    assert args.overrides == [f"hydra.searchpath=[file://{user_conf},tuned://tuned,pkg://gtsweep.conf,every://all]"]
+    assert search.search_path(args) == (
+        search.PRIMARY, f"file://{user_conf}", "tuned://tuned", "pkg://gtsweep.conf", "every://all")
+    assert "my_star" in search.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
+    cfg = compose_config([f"hydra.searchpath=[file://{user_conf}]", "detector=[my_star,orb]"])
+    assert set(cfg.detector) == {"my_star", "orb"}
 
 
 @pytest.mark.slow
@@ -161,7 +160,8 @@ def test_pyproject_ships_every_package_and_the_configs():
     folders = lambda root, name: {".".join((name, *d.relative_to(root).parts)) for d in [root, *root.rglob("*")]
                                   if d.is_dir() and d.name != "__pycache__"}
     packages = folders(PACKAGE_DIR, "gtsweep") | folders(CONF_DIR, "gtsweep.conf")
-    assert packages | {"gtsweep.conf.sweeps"} == set(setuptools["packages"])
+    plugins = folders(PROJECT_DIR / "hydra_plugins", "hydra_plugins") - {"hydra_plugins"}  # a namespace package
+    assert packages | plugins | {"gtsweep.conf.sweeps"} == set(setuptools["packages"])
     assert setuptools["package-dir"] == {"gtsweep.conf": "conf", "gtsweep.conf.sweeps": "sweeps"}
     assert CONF_DIR == PROJECT_DIR / "conf" and (CONF_DIR / "__init__.py").exists()
 
@@ -186,11 +186,11 @@ def test_hydra_types_the_parameters_and_settings(tmp_path):
     assert cfg.detector.orb.params.nfeatures == DETECTORS.get("orb").defaults["nfeatures"]
     with pytest.raises(BadInput, match=r"override 'detector.orb.params.nfeatures=1.5': expected an int like the "
                                        r"default \d+, got '1.5'"):
-        cli.prepare(["detector=[orb]", "detector.orb.params.nfeatures=1.5"])
+        cli.compose_config(["detector=[orb]", "detector.orb.params.nfeatures=1.5"])
     with pytest.raises(BadInput, match="override 'runner.shard_size=many': expected an int"):
-        cli.prepare(["runner.shard_size=many"])
+        cli.compose_config(["runner.shard_size=many"])
     with pytest.raises(BadInput, match=r"runner.shard_size must be an integer in \[1, inf\), got 0"):  # its range
-        cli.prepare(["runner.shard_size=0"])
+        cli.compose_config(["runner.shard_size=0"])
 
 
 def test_a_users_config_without_the_schema_keeps_the_defaults_but_names_what_it_misses(user_conf):
@@ -199,13 +199,13 @@ def test_a_users_config_without_the_schema_keeps_the_defaults_but_names_what_it_
     assert build_grid(cfg).detectors["sift"]["params"] == {**DETECTORS.get("sift").defaults, "contrastThreshold": 0.02}
     with pytest.raises(BadInput, match="detector 'sift': its config does not compose onto its defaults, so 'sigma' "
                                        "cannot be set; list /schema/detector/sift@_here_ first in its defaults"):
-        cli.prepare(["--config-dir", str(user_conf), "detector=[sift]", "detector.sift.params.sigma=1.5"])
+        cli.compose_config(["detector=[sift]", "detector.sift.params.sigma=1.5"], config_dir=str(user_conf))
 
 
 def test_a_descriptors_per_detector_entries_are_its_yamls_and_a_new_one_is_appended():
     with pytest.raises(BadInput, match=r"descriptor 'teblid' has no per_detector entry 'akaze' \(its entries: kaze, "
                                        r"orb, sift, surf\); a new one is appended: \+descriptor.teblid"):
-        cli.prepare(["descriptor=[teblid]", "descriptor.teblid.per_detector.akaze.scale_factor=6.0"])
+        cli.compose_config(["descriptor=[teblid]", "descriptor.teblid.per_detector.akaze.scale_factor=6.0"])
     cfg = cli.compose_config(["detector=[akaze]", "descriptor=[teblid]",
                               "+descriptor.teblid.per_detector.akaze.scale_factor=6.0"])
     assert cfg.descriptor.teblid.per_detector.akaze.scale_factor == 6.0

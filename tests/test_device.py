@@ -239,10 +239,10 @@ def test_pose_verdicts_must_be_the_same_for_every_pair():
 
 
 def test_cuda_without_a_device_stops_in_the_preflight_before_any_output(monkeypatch):
-    from gtsweep.cli import preflight
+    from gtsweep.cli.overrides import compose_config  # the checks of a composed job, as the command line's
 
     monkeypatch.setattr(devices, "cuda_available", lambda: False)
     with pytest.raises(BadInput, match="runner.device=cuda, but torch sees no CUDA device"):
-        preflight.check(["sweeps=smoke", "detector=[aliked_n16rot]", "descriptor=[aliked_n16rot]",
-                         "runner.device=cuda"])
-    preflight.check(["sweeps=smoke", "detector=[sift]", "descriptor=[sift]", "runner.device=cuda"])  # nothing moves
+        compose_config(["sweeps=smoke", "detector=[aliked_n16rot]", "descriptor=[aliked_n16rot]",
+                        "runner.device=cuda"])
+    compose_config(["sweeps=smoke", "detector=[sift]", "descriptor=[sift]", "runner.device=cuda"])  # nothing moves

@@ -77,15 +77,15 @@ def test_unknown_names_bad_values_and_moved_settings_are_one_line():
         build_grid(_cfg(experiment={"name": "pose", "ratio": 0.8}))
     with pytest.raises(BadInput, match="experiment.pose.iterations moved to the estimator group"):
         build_grid(_cfg(experiment={"name": "pose", "pose": {"iterations": 10, "max_position_error": 30.0}}))
-    # the command line: before Hydra, one line each (exit code 2 in python -m gtsweep)
+    # the command line: where Hydra composes, one line each (exit code 2 in python -m gtsweep)
     with pytest.raises(UnknownMethod, match="unknown matcher 'knn'"):
-        cli.prepare(["matcher=knn"])
+        cli.compose_config(["matcher=knn"])
     with pytest.raises(BadInput, match="'experiment.ratio' moved to the matcher group: write "
                                        "matcher.bf_ratio.params.ratio="):
-        cli.prepare(["experiment.ratio=0.8"])
+        cli.compose_config(["experiment.ratio=0.8"])
     with pytest.raises(BadInput, match="estimator 'cv_lmeds' has no parameter 'threshold'"):
-        cli.prepare(["estimator=[cv_lmeds]", "estimator.cv_lmeds.params.threshold=2.0"])
-    assert "matcher=[bf_ratio,flann,lightglue,mutual_nn]" in cli.prepare(["matcher=all"])
+        cli.compose_config(["estimator=[cv_lmeds]", "estimator.cv_lmeds.params.threshold=2.0"])
+    assert list(cli.compose_config(["matcher=all"]).matcher) == ["bf_ratio", "flann", "lightglue", "mutual_nn"]
 
 
 def test_mlflow_names_carry_matcher_and_estimator_only_when_several():

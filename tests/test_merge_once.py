@@ -32,9 +32,8 @@ def test_a_command_line_parameter_is_merged_onto_its_defaults_once(monkeypatch):
     monkeypatch.setattr(Method, "params", counting)
     monkeypatch.setattr(schemas, "method_schema", schema)
     args = ["detector=[orb]", "descriptor=[orb]", "detector.orb.params.nfeatures=500"]
-    cli.prepare(args)  # the command line's checks: Hydra composes the job, gtsweep merges nothing
+    cfg = cli.compose_config(args)  # the command line's checks: Hydra composes the job, gtsweep merges nothing
     assert calls == [] and "orb" in stored
-    cfg = cli.compose_config(args)
     composed = OmegaConf.to_container(cfg.detector.orb.params)
     assert composed == {**DETECTORS.get("orb").defaults, "nfeatures": 500}  # merged by Hydra, in full
     grid = build_grid(cfg)

@@ -11,6 +11,7 @@ import yaml
 from sweep_helpers import compose_config, run_cli, tiny_overrides
 
 from gtsweep.cli import overrides as cli
+from gtsweep.cli import search
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.optimize.driver import main
@@ -98,7 +99,7 @@ def test_tuned_config_loads_back_through_hydra(first, monkeypatch):
     assert cfg.detector.fast.params.type == 2  # untuned defaults are kept
     assert {c.detector for c in build_grid(cfg).cells} == {"fast", "orb"}
     with pytest.raises(UnknownMethod, match="tuned/fast"):  # the CLI's check lists tuned options
-        cli.prepare(["detector=[tuned/siftt]"])
+        cli.compose_config(["detector=[tuned/siftt]"])
 
 
 def test_resume_continues_the_study_without_duplicate_runs(first):
@@ -180,9 +181,9 @@ def test_detector_without_space_stops_before_any_work(tmp_path):
 
 
 def test_every_detector_declares_a_valid_space(tmp_path):
-    cfg = compose_config(tiny_overrides(tmp_path, "experiment=optimize", *cli.expand_all(["detector=all"])))
+    cfg = compose_config(tiny_overrides(tmp_path, "experiment=optimize", "detector=all"))
     targets = build_targets(cfg, read_settings(cfg))
-    assert len(targets) == len(cli.options("detector")) and all(1 <= len(t.distributions) <= 3 for t in targets)
+    assert len(targets) == len(search.options("detector")) and all(1 <= len(t.distributions) <= 3 for t in targets)
 
 
 def test_score_is_lexicographic():

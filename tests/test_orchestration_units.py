@@ -5,9 +5,11 @@ import numpy as np
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
+from sweep_helpers import checked_jobs
 
 from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
+from gtsweep.cli import runs
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
 from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash
@@ -91,10 +93,9 @@ def test_result_store_marks_complete_cells(tmp_path):
     assert store.rows("k").equals(rows)
 
 
-def test_all_expands_to_every_option():
-    (arg,) = cli.expand_all(["detector=all"])
-    names = arg.split("=[")[1].rstrip("]").split(",")
-    assert {"sift", "akaze", "censure", "msd"} <= set(names) and "all" not in names
+def test_all_is_every_option():
+    names = list(cli.compose_config(["detector=all"]).detector)
+    assert {"sift", "akaze", "censure", "msd"} <= set(names) and "all" not in names and names == sorted(names)
 
 
 @pytest.mark.parametrize("args, message", [
@@ -126,22 +127,29 @@ def test_bad_overrides_fail_in_one_line(args, message, capsys):
     assert message in err and len(err.splitlines()) == 1, err
 
 
-def test_good_overrides_pass():
-    cli.prepare(["-m", "detector=all", "selector.nms.params.n=500", "seed=0,1", "transform=[rotation,noise]",
-                 "transform.rotation.strengths=[0,90]", "+foo=1"])
-    cli.prepare(["-m", "detector=glob(s*)"])
-    cli.prepare(["-m", "detector=[sift,orb],[sift]", "detector.sift.params.sigma=1.5"])  # sift in every job
+def test_good_overrides_pass(tmp_path, monkeypatch):
+    jobs = checked_jobs(["detector=all", "selector.nms.params.n=500", "seed=0,1", "transform=[rotation,noise]",
+                         "transform.rotation.strengths=[0,90]", "+foo=1"], tmp_path, monkeypatch)
+    assert [job[:4] for job in jobs] == [["detector=all", "selector.nms.params.n=500", f"seed={seed}",
+                                          "transform=[rotation,noise]"] for seed in (0, 1)]
+    jobs = checked_jobs(["detector=glob(s*)"], tmp_path, monkeypatch)
+    assert [job[0] for job in jobs] == ["detector=sift", "detector=surf"]
+    checked_jobs(["detector=[sift,orb],[sift]", "detector.sift.params.sigma=1.5"], tmp_path, monkeypatch)
 
 
-def test_resume_finds_the_newest_run_of_the_same_command(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    args = ["detector=[sift]", "resume=true"]
+def test_resume_finds_the_newest_run_of_the_same_command(tmp_path):
     run = tmp_path / "outputs" / "2026-01-01" / "10-00-00"
     run.mkdir(parents=True)
-    (run / cli.SWEEP_RECORD).write_text(json.dumps({"key": cli.sweep_key(["detector=[sift]"])}))
+    (run / runs.SWEEP_RECORD).write_text(json.dumps({"key": runs.command_key(["detector=[sift]"])}))
     (run / "mlflow.json").write_text("{}")  # a run that started (one that never did is passed over)
-    assert cli.resume_args(args, multirun=False) == [f"hydra.run.dir={run}"]
-    assert cli.resume_args(["detector=[orb]", "resume=true"], multirun=False) == []
+    assert runs.command_key(["detector=[sift]", "resume=true"]) == runs.command_key(["detector=[sift]"])
+    assert runs.earlier_run(runs.command_key(["detector=[sift]"]), False, tmp_path) == run
+    assert runs.earlier_run(runs.command_key(["detector=[orb]"]), False, tmp_path) is None
+    sweep = tmp_path / "multirun" / "2026-01-01" / "10-00-00"
+    (sweep / "0").mkdir(parents=True)  # a multirun's jobs record its command's key
+    (sweep / "0" / runs.SWEEP_RECORD).write_text(json.dumps({"key": runs.command_key(["seed=0,1"])}))
+    (sweep / "0" / "mlflow.json").write_text("{}")
+    assert runs.earlier_run(runs.command_key(["seed=0,1", "resume=true"]), True, tmp_path) == sweep
 
 
 @pytest.mark.parametrize("preset", sorted(p.stem for p in SWEEPS_DIR.glob("*.yaml")))

@@ -5,6 +5,8 @@ import sys
 import numpy as np
 import pytest
 
+from sweep_helpers import checked_jobs
+
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
 from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
@@ -133,22 +135,13 @@ def test_describe_does_not_import_detect():
     assert result.stdout.strip() == "False"
 
 
-def test_cli_passes_method_parameters_to_hydra_as_they_are():
+def test_cli_passes_method_parameters_to_hydra_as_they_are(tmp_path, monkeypatch):
     """A method's YAML composes onto its schema (its defaults in code): every parameter is in the config, so an
     override needs no force-add, and Hydra refuses an unselected method's."""
     args = ["detector=[sift]", "detector.sift.params.contrastThreshold=0.02", "seed=1"]
-    assert cli.prepare(args) == args
     cfg = cli.compose_config(args)
     assert build_grid(cfg).detectors["sift"]["params"] == {**_sift().defaults, "contrastThreshold": 0.02}
-    assert cli.prepare(["sweeps=smoke", "detector.sift.params.sigma=1.5"])[-1] == "detector.sift.params.sigma=1.5"
-    with pytest.raises(BadInput, match="detector 'orb' is not selected"):
-        cli.prepare(["-m", "detector=[sift],[sift,orb]", "detector.orb.params.nfeatures=5"])
-
-
-def test_hydra_overrides_are_placed_with_the_others():
-    assert cli.place(["detector=[sift]", "--cfg", "job"], ["hydra.x=1"]) == ["detector=[sift]", "hydra.x=1",
-                                                                           "--cfg", "job"]
-    assert cli.place(["--cfg", "job", "detector=[sift]"], ["hydra.x=1"]) == ["detector=[sift]", "hydra.x=1",
-                                                                           "--cfg", "job"]
-    assert cli.place(["--cfg", "job"], ["hydra.x=1"]) == ["hydra.x=1", "--cfg", "job"]
-    assert cli.place(["--info"], ["hydra.x=1"]) == ["hydra.x=1", "--info"]  # not taken as --info's value
+    assert cli.compose_config(["sweeps=smoke", "detector.sift.params.sigma=1.5"]).detector.sift.params.sigma == 1.5
+    with pytest.raises(SystemExit) as exit_info:  # the sweeper checks every job before any runs
+        checked_jobs(["detector=[sift],[sift,orb]", "detector.orb.params.nfeatures=5"], tmp_path, monkeypatch)
+    assert exit_info.value.code == 2

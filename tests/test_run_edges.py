@@ -10,7 +10,7 @@ import textwrap
 import pytest
 from sweep_helpers import cli_env, tiny_overrides
 
-from gtsweep.cli.overrides import prepare
+from gtsweep.cli.overrides import compose_config
 from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration import dashboard
@@ -20,8 +20,8 @@ def test_the_dashboard_without_its_packages_is_refused_in_the_pre_flight(monkeyp
     monkeypatch.setattr(dashboard, "_dashboard_missing", lambda: "No module named 'aiohttp_cors'")
     with pytest.raises(BadInput, match=r"runner.dashboard=true needs Ray's dashboard: pip install 'ray\[default\]' "
                                        r"\(No module named 'aiohttp_cors'\)"):
-        prepare(["runner.dashboard=true", "detector=[orb]"])
-    prepare(["runner.dashboard=true", "runner.backend=serial", "detector=[orb]"])  # no Ray, no dashboard: fine
+        compose_config(["runner.dashboard=true", "detector=[orb]"])
+    compose_config(["runner.dashboard=true", "runner.backend=serial", "detector=[orb]"])  # no Ray, no dashboard: fine
 
 
 @pytest.mark.slow

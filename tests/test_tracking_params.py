@@ -184,13 +184,16 @@ def test_a_composed_job_names_its_methods_as_written(monkeypatch, tmp_path):
     from hydra import compose
     from hydra.core.hydra_config import HydraConfig
 
-    from gtsweep.cli import preflight
-    from gtsweep.cli.search import PRIMARY_NAME
+    from hydra import initialize_config_module
+
+    from gtsweep.cli.overrides import register_all
+    from gtsweep.cli.search import PRIMARY_MODULE, PRIMARY_NAME
     from gtsweep.tracking.params import written_options
 
     monkeypatch.chdir(tmp_path)
     args = ["detector=[tuned/sift,orb]", "descriptor=[brief]"]
-    with preflight.composer(args):
+    register_all()
+    with initialize_config_module(config_module=PRIMARY_MODULE, version_base=None):
         cfg = compose(config_name=PRIMARY_NAME, overrides=args, return_hydra_config=True)
         HydraConfig.instance().set_config(cfg)
         written = written_options()

@@ -1,53 +1,72 @@
 """The command line on top of every layer: ``python -m gtsweep``.
 
-Before Hydra runs the job, :mod:`gtsweep.cli.overrides` expands ``group=all``, has Hydra compose every job once
-(:mod:`gtsweep.cli.preflight`: one line and exit code 2 for a mistake) and, with ``resume=true``, reopens the
-newest earlier run; the output directory is checked (writable, not in use by another run) before Hydra writes
-anything; then the Hydra application :mod:`gtsweep.cli.app` runs the job. Only the overrides are touched: Hydra's
-own flags work anywhere.
+Hydra's own parser reads the command line (its flags may stand between the overrides), and Hydra runs the
+application :mod:`gtsweep.cli.app` on its seams: ``every://all`` makes ``group=all`` an option
+(:mod:`gtsweep.core.searchpath`), the sweeper of ``-m`` globs over the search path and checks every job first
+(:mod:`gtsweep.cli.sweeper`), the run callback checks a single run's job and claims or reopens its output
+directory (:mod:`gtsweep.cli.runs`). Hydra's composition errors are said in one line with exit code 2
+(:mod:`gtsweep.cli.checks`).
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
 
 from gtsweep.cli import completion, lifecycle
-from gtsweep.cli.overrides import fail, place, prepare, resume_args
-from gtsweep.cli.search import parse, search_path
-from gtsweep.core.errors import GtsweepError
-from gtsweep.core.paths import DEFAULT_TUNED_ROOT
+from gtsweep.cli.checks import forget_notes, note_left_out, translate
+from gtsweep.cli.lifecycle import fail
+from gtsweep.cli.overrides import register_all
+from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, hydra_parser, search_path
 from gtsweep.core.configguard import check_config_files
-from gtsweep.core.searchpath import ignore_missing_dir, register_sources
+from gtsweep.core.errors import GtsweepError
+from gtsweep.core.interrupts import Interrupted, interruptible
 
-#: Flags that only print (help, config): no output directory needed.
-PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info", "--shell-completion", "-sc")
+
+@contextlib.contextmanager
+def hydra_errors_raised():
+    """Hydra prints its errors and exits 1 unless ``HYDRA_FULL_ERROR`` is set: raised, they become one line."""
+    before = os.environ.get("HYDRA_FULL_ERROR")
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = before
 
 
 def main(argv: list[str] | None = None) -> None:
+    import yaml
+    from hydra._internal.utils import _run_hydra
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
     args = list(sys.argv[1:] if argv is None else argv)
     if completion.handled(args):  # shell completion of a group's options, before the application loads
         return
-    invocation = parse(args)
-    if not invocation.passthrough:
+    lifecycle.COMMAND[:] = args
+    parsed = hydra_args(args)
+    try:
+        check_config_files(search_path(parsed))  # ./tuned and --config-dir hold data, never code
+    except GtsweepError as e:
+        fail(e)
+    register_all()
+    forget_notes()
+    with interruptible(), hydra_errors_raised():  # Ctrl-C while Hydra composes or imports: one line too
         try:
-            check_config_files(search_path(args))  # ./tuned and --config-dir hold data, never code
-            args = prepare(args)
-            args = place(args, resume_args(args, invocation.multirun))
-            if not any(a in PRINT_ONLY for a in args):
-                lifecycle.prepare_output(args, invocation.multirun)
-        except GtsweepError as e:
-            fail(e)
-    ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
-    lifecycle.register_resolvers()
-    register_sources()
-    sys.argv = [sys.argv[0], *args]
-    with lifecycle.interruptible():  # Ctrl-C while Hydra composes or imports: one line too
-        try:
-            from gtsweep.cli.app import hydra_main
+            from gtsweep.cli.app import app
 
-            hydra_main()
+            _run_hydra(args=parsed, args_parser=hydra_parser(), task_function=app, config_path=PRIMARY,
+                       config_name=PRIMARY_NAME)
+            note_left_out()  # --cfg, --info: nothing ran, the line still says what all left out
+        except (HydraException, OmegaConfBaseException, yaml.YAMLError, GtsweepError) as e:
+
+            fail(translate(e, parsed.overrides, configs(args)))
         except ValueError as e:  # Hydra refuses a combination of its flags (e.g. -m with --cfg): one line
-            if not str(e).startswith("Only one of"):
+            if not str(e).startswith(("Only one of", "The --resolve flag")):
                 raise
             fail(GtsweepError(str(e)))
-        except lifecycle.Interrupted as e:
+        except Interrupted as e:
             lifecycle.exit_interrupted(e, "no cell has finished")

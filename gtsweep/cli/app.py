@@ -11,30 +11,17 @@ import logging
 import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from gtsweep.cli.lifecycle import (
-    claim,
-    exit_failed,
-    exit_interrupted,
-    failure_cause,
-    interruptible,
-    interruption,
-    register_resolvers,
-    resume_command,
-    stop_workers,
-)
+from gtsweep.cli.lifecycle import claim, fail, resume_command, stop
+from gtsweep.cli.overrides import register_all
+from gtsweep.cli.runs import SWEEP_RECORD, command_key
 from gtsweep.cli.watchdog import watched
-from gtsweep.cli.overrides import SWEEP_RECORD, fail, sweep_key
-from gtsweep.cli.schemas import register_schemas
-from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, keyed_methods
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core import interrupts
 from gtsweep.core.errors import GtsweepError
-from gtsweep.core.interrupts import Interrupted
-from gtsweep.core.searchpath import configs_of_sources, register_help_resolver, register_sources
+from gtsweep.core.interrupts import Interrupted, interruptible
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
@@ -43,34 +30,25 @@ from gtsweep.report.samples import load_views
 from gtsweep.report.scale import scale_from_config
 
 log = logging.getLogger(__name__)
-register_resolvers()  # also in processes that only import this module (Hydra's joblib launcher workers)
-register_sources()
-register_schemas()  # the method and run-setting schemas the configs compose onto
+register_all()  # also in processes that only import this module (Hydra's joblib launcher workers)
 
 
-def hydra_main() -> None:
-    """Run the Hydra application on ``sys.argv`` (already checked and expanded by :func:`gtsweep.cli.main`)."""
-    register_help_resolver()
-    _app()
-
-
-@hydra.main(config_path=PRIMARY, config_name=PRIMARY_NAME, version_base=None)
-def _app(cfg: DictConfig) -> None:
+def app(cfg: DictConfig) -> None:
+    """The task function Hydra runs for each job (:func:`gtsweep.cli.main`)."""
     hydra_cfg = HydraConfig.get()
-    keyed_methods(cfg, configs_of_sources(hydra_cfg.runtime.config_sources), hydra_cfg.overrides.task)
     output_dir = Path(hydra_cfg.runtime.output_dir)
+    overrides = list(hydra_cfg.overrides.task)
     try:
         experiment = EXPERIMENTS.get(cfg.experiment.name)
         claim(output_dir)
-        record = {"key": sweep_key(sys.argv[1:]), "argv": sys.argv[1:], "overrides": list(hydra_cfg.overrides.task)}
-        write_atomically(output_dir / SWEEP_RECORD, json.dumps(record))
+        write_atomically(output_dir / SWEEP_RECORD, json.dumps({"key": job_key(hydra_cfg), "overrides": overrides}))
     except (GtsweepError, OSError) as e:
         fail(e if isinstance(e, GtsweepError) else f"cannot write the output directory {output_dir}: {e}")
-    log.info("gtsweep %s in %s", " ".join(sys.argv[1:]), output_dir)
+    log.info("gtsweep %s in %s", " ".join(overrides), output_dir)
     with interruptible():
         if experiment.job is not None:  # a job of its own (parameter optimisation)
             _job(experiment, cfg, output_dir)
-        elif cfg.runner.get("backend", "ray") == "ray":
+        elif cfg.runner.backend == "ray":
             with watched(output_dir, resume_command()):  # Ray may end this process from its compiled code
                 _sweep(experiment, cfg, hydra_cfg, output_dir)
         else:
@@ -80,15 +58,8 @@ def _app(cfg: DictConfig) -> None:
 def _job(experiment: Experiment, cfg: DictConfig, output_dir: Path) -> None:
     try:
         experiment.job(cfg, output_dir)
-    except GtsweepError as e:
-        stop_workers()
-        fail(e)
     except (Interrupted, Exception) as e:
-        signal = interruption(e)
-        stop_workers()
-        if signal is None:
-            exit_failed(e, "finished trials are kept in the study")
-        exit_interrupted(signal, "finished trials are kept in the study")
+        stop(e, lambda: "finished trials are kept in the study")
 
 
 def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path) -> None:
@@ -113,22 +84,10 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
         tables, files = experiment.report(outcome.summaries, output_dir / "report", options)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
-    except GtsweepError as e:
+    except (Interrupted, Exception) as e:  # bad input, Ctrl-C, or a failure anywhere (disk, store, cluster)
         progress.close()
-        stop_workers()
-        if tracker is not None:
-            tracker.abort(str(e))
-        fail(e)
-    except (Interrupted, Exception) as e:  # Ctrl-C, or a failure anywhere (disk, store, cluster): one line
-        signal = interruption(e)
-        progress.close()
-        stop_workers()
-        marked = tracker.abort(str(signal) if signal else failure_cause(e), "KILLED" if signal else "FAILED") \
-            if tracker is not None else ""
-        kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
-        if signal is None:
-            exit_failed(e, kept, marked)
-        exit_interrupted(signal, kept)
+        stop(e, lambda: f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}",
+             tracker.abort if tracker is not None else None)
     progress.close()
     summary = [experiment.summary(outcome, tables), scale.line(),
                f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
@@ -145,6 +104,17 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path)
         if hydra_cfg.mode != RunMode.MULTIRUN:
             sys.exit(1)
         # in a multirun the other jobs still run and are combined; the multirun then exits 1 (gtsweep.cli.multirun)
+
+
+def job_key(hydra_cfg) -> str:
+    """The command a job belongs to (:func:`gtsweep.cli.runs.command_key`): its own, or its multirun's."""
+    from hydra.types import RunMode
+
+    from gtsweep.cli.multirun import multirun_record
+
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        return command_key(hydra_cfg.overrides.task)
+    return multirun_record(Path(hydra_cfg.sweep.dir)).get("key", "")
 
 
 def parent_run(hydra_cfg, output_dir: Path) -> tuple[str, str | None]:

@@ -19,38 +19,12 @@ from __future__ import annotations
 
 import os
 import shlex
+from importlib import resources
 
 from gtsweep.cli.search import configs
 
-#: ``-sc install=bash`` prints this script.
-SCRIPT = r"""_gtsweep_completion()
-{
-    local command=("${COMP_WORDS[0]}")
-    if [[ "${COMP_WORDS[0]##*/}" == python* ]]; then
-        if [[ "${COMP_WORDS[1]}" != "-m" || "${COMP_WORDS[2]}" != "gtsweep" ]]; then
-            if [[ -n "$_GTSWEEP_PYTHON_COMPLETION" ]]; then
-                "$_GTSWEEP_PYTHON_COMPLETION" "$@"
-            fi
-            return
-        fi
-        command=("${COMP_WORDS[0]}" -m gtsweep)
-    fi
-    # the whole word before the cursor, and the part of it that bash replaces (bash splits at = and :)
-    local word="${COMP_LINE:0:COMP_POINT}"
-    word="${word##*[[:space:]]}"
-    local cut=$(( ${#word} - ${#COMP_WORDS[COMP_CWORD]} ))
-    local choice
-    COMPREPLY=()
-    for choice in $(COMP_LINE="$COMP_LINE" COMP_POINT="$COMP_POINT" "${command[@]}" -sc query=bash 2>/dev/null); do
-        [[ "$choice" == "$word"* ]] && COMPREPLY+=("${choice:cut}")
-    done
-}
-if [[ -z "${_GTSWEEP_PREVIOUS+set}" ]]; then  # installed twice: keep what was there the first time
-    _GTSWEEP_PREVIOUS=$(complete -p python python3 2>/dev/null)
-    _GTSWEEP_PYTHON_COMPLETION=$(sed -n 's/.* -F \([^ ]*\) .*/\1/p' <<< "$_GTSWEEP_PREVIOUS" | head -n 1)
-fi
-complete -o nospace -o default -F _gtsweep_completion gtsweep python python3
-"""
+#: ``-sc install=bash`` prints this script (completion.bash beside this module).
+SCRIPT = resources.files(__package__).joinpath("completion.bash").read_text()
 UNINSTALL = """complete -r gtsweep python python3 2>/dev/null
 eval "$_GTSWEEP_PREVIOUS"
 unset -f _gtsweep_completion

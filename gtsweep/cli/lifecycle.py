@@ -12,31 +12,30 @@ import atexit
 import contextlib
 import logging
 import os
-import re
 import shlex
-import signal
 import sys
 import tempfile
-import threading
-import time
 import traceback
 from pathlib import Path
-from typing import Iterator, NoReturn
+from typing import NoReturn
 
 from filelock import FileLock, Timeout
 from omegaconf import OmegaConf
 
-from gtsweep.core import interrupts
-from gtsweep.core.errors import BadInput
-from gtsweep.core.interrupts import Interrupted
+from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.interrupts import Interrupted, interruption
 
 LOCK_FILE = ".gtsweep.lock"
+COMMAND: list[str] = []  # the command line of this process's gtsweep.cli.main
 _held: dict = {}  # output directory -> its lock file, held for this process's life
 
 
 def new_dir(base: str) -> str:
     """``base``, or ``base-2``, ``base-3``... : the first that this process creates (an exclusive claim)."""
-    Path(base).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        Path(base).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise BadInput(f"cannot write the output directory {base}: {e.strerror or e}") from None
     for n in range(1, 1000):
         candidate = base if n == 1 else f"{base}-{n}"
         try:
@@ -79,22 +78,6 @@ def check_writable(directory: str | os.PathLike) -> None:
         raise BadInput(f"cannot write the output directory {directory}: {e.strerror or e}") from None
 
 
-def output_root(args: list[str], multirun: bool) -> tuple[str, bool]:
-    """The directory a run will write under and whether it was given: ``hydra.run.dir``/``hydra.sweep.dir``, else
-    the default root (``outputs`` or ``multirun``)."""
-    key = "hydra.sweep.dir=" if multirun else "hydra.run.dir="
-    explicit = [a[len(key):] for a in args if a.startswith(key)]
-    return (explicit[-1], True) if explicit else ("multirun" if multirun else "outputs", False)
-
-
-def prepare_output(args: list[str], multirun: bool) -> None:
-    """Before Hydra writes anything: the output directory must be writable, and a given one must be free."""
-    root, explicit = output_root(args, multirun)
-    check_writable(root)
-    if explicit:
-        claim(Path(root))
-
-
 def claim(output_dir: Path) -> None:
     """Lock ``output_dir`` for this process's life: a second run writing there stops with one line."""
     key = str(output_dir.resolve())
@@ -109,73 +92,15 @@ def claim(output_dir: Path) -> None:
     _held[key] = lock
 
 
-@contextlib.contextmanager
-def interruptible() -> Iterator[None]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` (once: later signals are ignored while it cleans up)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {s: signal.getsignal(s) for s in interrupts.SIGNALS}
-    for s in interrupts.SIGNALS:
-        signal.signal(s, interrupts.on_signal)
-    try:
-        yield
-    finally:
-        for s, old in previous.items():
-            signal.signal(s, old)
-        interrupts.clear()
-
-
-def interruption(error: BaseException) -> Interrupted | None:
-    """The :class:`Interrupted` behind ``error``: Ray's compiled code turns an exception raised by a signal
-    handler during ``ray.wait`` into a ``SystemError`` caused by it."""
-    seen = set()
-    while error is not None and id(error) not in seen:
-        if isinstance(error, Interrupted):
-            return error
-        seen.add(id(error))
-        error = error.__cause__ or error.__context__
-    return None
-
-
-def stop_workers() -> None:
-    """Shut down Ray if this process started or joined it, then end Ray's processes of this command that outlived
-    it (a Ctrl-C that reaches the whole process group while Ray starts can kill the raylet before its agents).
-    A raylet can still be starting an agent while it is ended, so the search repeats until it finds nothing."""
-    ray = sys.modules.get("ray")
-    if ray is None:
-        return
-    if ray.is_initialized():
-        with contextlib.suppress(Exception):
-            ray.shutdown()
-    _stopped["ray"] = True
-    end_ray_processes(os.path.dirname(getattr(ray, "__file__", None) or "") or None)
-
-
-def end_ray_processes(ray_dir: str | None, owner: int | None = None) -> None:
-    """End the Ray processes of ``owner``'s command (:func:`leftover_ray_processes`; default: this process), until
-    none is found (a raylet can still be starting an agent while it is ended)."""
-    for _ in range(STOP_ROUNDS):
-        leftovers = leftover_ray_processes(ray_dir=ray_dir, owner=owner)
-        if not leftovers:
-            return
-        for pid in leftovers:
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGKILL)
-        time.sleep(STOP_PAUSE_S)
-
-
-STOP_ROUNDS, STOP_PAUSE_S = 10, 0.2
-_stopped = {"ray": False}  # whether stop_workers ended this process's Ray
-
-
 def leave(code: int | str | None) -> NoReturn:
     """End the process with a :class:`SystemExit`'s ``code``. After :func:`stop_workers` ended Ray, the process
     skips C's exit handlers: once its raylet and GCS are gone (a Ctrl-C to the whole process group reaches them
     too), Ray's core-worker exit handler (``CoreWorkerProcess::HandleAtExit``, Ray 2.60) waits for the dead GCS and
     then crashes the process (SIGSEGV: exit status -11 instead of 130). Python's own exit work (atexit functions,
     logging, the standard streams) is done first."""
-    if not _stopped["ray"]:
+    from gtsweep.orchestration.cluster import ray_stopped
+
+    if not ray_stopped():
         sys.exit(code)
     if isinstance(code, str):  # sys.exit("message"): Python prints it
         print(code, file=sys.stderr)
@@ -185,82 +110,14 @@ def leave(code: int | str | None) -> NoReturn:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(code if isinstance(code, int) else (0 if code is None else 1))
-#: Ray names a node's session after the process that starts it: ``session_<date>_<time>_<microseconds>_<pid>``
-#: (``ray._private.node.Node``); every process of the node names that folder in its command line or its open files.
-SESSION = re.compile(rb"session_\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d_\d+_(\d+)(?![\d])")
-
-
-def leftover_ray_processes(proc: Path = Path("/proc"), ray_dir: str | None = None,
-                           owner: int | None = None) -> list[int]:
-    """Ray's processes that this command started, and nothing else's (Linux; elsewhere none): a Ray program
-    (``ray::...``, raylet, GCS, or a script of Ray's package in ``ray_dir``) that descends from ``owner`` (default:
-    this process; the watchdog names its dead sweep), or that names the Ray session ``owner`` started (by its pid)
-    and began after this process. An orphaned agent is found whatever its process group; a cluster the user
-    started with ``ray start`` (another session) or another command's Ray is never matched."""
-    me = os.getpid()
-    owner = owner or me
-    table = _processes(proc, ray_dir)
-    if me not in table:
-        return []
-    born = table[me]["start"]
-
-    def descends(pid: int) -> bool:
-        seen = set()
-        while pid not in (0, 1) and pid not in seen:
-            seen.add(pid)
-            pid = table.get(pid, {}).get("ppid", 0)
-            if pid == owner:
-                return True
-        return False
-
-    def names_my_session(pid: int) -> bool:
-        texts = [table[pid]["cmdline"], *_open_files(proc / str(pid))]
-        return table[pid]["start"] >= born and any(
-            int(m.group(1)) == owner for text in texts for m in SESSION.finditer(text))
-
-    return sorted(pid for pid, info in table.items()
-                  if pid not in (me, owner) and info["ray"] and (descends(pid) or names_my_session(pid)))
-
-
-def _processes(proc: Path, ray_dir: str | None) -> dict[int, dict]:
-    """pid -> parent, start time (clock ticks after boot), command line and whether it is a Ray program."""
-    marker = os.fsencode(ray_dir.rstrip("/") + "/") if ray_dir else None
-    table = {}
-    for entry in proc.glob("[0-9]*"):
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except (OSError, ValueError, IndexError):
-            continue
-        program = argv[0]
-        ray = program.startswith(b"ray::") or os.path.basename(program) in (b"raylet", b"gcs_server") or (
-            marker is not None and any(arg.startswith(marker) for arg in argv[:3]))
-        try:
-            table[int(entry.name)] = {"ppid": int(fields[1]), "start": int(fields[19]), "ray": ray,
-                                      "cmdline": b" ".join(argv)}
-        except (ValueError, IndexError):
-            continue
-    return table
-
-
-def _open_files(process: Path) -> list[bytes]:
-    """Where ``process``'s file descriptors point (its logs in the Ray session folder); none if not readable."""
-    targets = []
-    with contextlib.suppress(OSError):
-        for fd in (process / "fd").iterdir():
-            with contextlib.suppress(OSError):
-                targets.append(os.fsencode(os.readlink(fd)))
-    return targets
-
-
 def resume_command() -> str:
-    """The command that continues this run: the user's command as typed (``sys.orig_argv``, which gtsweep's
-    rewrite of ``sys.argv`` leaves alone) with ``resume=true``."""
+    """The command that continues this run: the user's command as typed (``sys.orig_argv``) with
+    ``resume=true``."""
     typed = list(getattr(sys, "orig_argv", []))
     if typed[1:3] == ["-m", "gtsweep"]:
         args = typed[3:]
-    else:  # called from Python (tests, scripts): the arguments Hydra got
-        args = [a for a in sys.argv[1:] if not a.startswith("hydra.searchpath=")]
+    else:  # called from Python (tests, scripts): the command line gtsweep's main() got
+        args = list(COMMAND)
     return shlex.join(["python", "-m", "gtsweep", *[a for a in args if not a.startswith("resume=")], "resume=true"])
 
 
@@ -301,6 +158,31 @@ def exit_failed(error: BaseException, kept: str, marked: str = "") -> None:
 def failure_line(cause: str, kept: str, marked: str = "", resume: str | None = None) -> str:
     """The one line a failed run ends with (also printed by :mod:`gtsweep.cli.watchdog` for a vanished sweep)."""
     return f"gtsweep: error: {cause}; {kept}{marked}; to continue: {resume or resume_command()}"
+
+
+def fail(error: Exception) -> NoReturn:
+    """Bad input: one line, exit code 2."""
+    print(f"gtsweep: error: {error}", file=sys.stderr)
+    sys.exit(2)
+
+
+def stop(error: BaseException, kept, abort=None) -> NoReturn:
+    """End a job that stopped on ``error`` once its workers are stopped: bad input in one line (exit 2), else the
+    cause or the interrupt with what is kept (``kept()``) and how to continue; ``abort(cause[, status])`` marks
+    its MLflow run and says what became of it."""
+    from gtsweep.orchestration.cluster import stop_workers
+
+    signal = interruption(error)
+    stop_workers()
+    if isinstance(error, GtsweepError):
+        if abort is not None:
+            abort(str(error))
+        fail(error)
+    marked = abort(str(signal) if signal else failure_cause(error), "KILLED" if signal else "FAILED") \
+        if abort is not None else ""
+    if signal is None:
+        exit_failed(error, kept(), marked)
+    exit_interrupted(signal, kept())
 
 
 def exit_interrupted(error: Interrupted, kept: str) -> None:

@@ -1,5 +1,6 @@
-"""The Hydra callback of ``-m`` (``hydra.callbacks.multirun`` in conf/config.yaml): one MLflow run that holds the
-jobs' runs, and at the end one combined table and report across the jobs (:mod:`gtsweep.report.combine`)."""
+"""``-m``: one MLflow run that holds the jobs' runs (opened by the sweeper once every job is checked), and at the
+end one combined table and report across the jobs (:mod:`gtsweep.report.combine`), by the Hydra callback
+``hydra.callbacks.multirun`` of conf/config.yaml."""
 from __future__ import annotations
 
 import json
@@ -24,23 +25,24 @@ def swept_keys(overrides) -> list[str]:
     return [o.key_or_group for o in OverridesParser.create().parse_overrides(list(overrides)) if o.is_sweep_override()]
 
 
+def open_multirun_run(config) -> None:
+    """Record the swept keys and open the multirun's MLflow run (once its jobs are checked: the sweeper)."""
+    from gtsweep.tracking.tags import overrides_name
+
+    sweep_dir = Path(config.hydra.sweep.dir)
+    overrides = list(config.hydra.overrides.task)
+    record = {**multirun_record(sweep_dir), "swept": swept_keys(overrides)}
+    if config.mlflow.enabled:
+        from gtsweep.tracking.sweep import open_multirun
+
+        swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record["swept"]]
+        record["parent_run_id"] = open_multirun(config.mlflow, "multirun " + overrides_name(swept, ""),
+                                                sweep_dir, record.get("parent_run_id"))
+    (sweep_dir / MULTIRUN_RECORD).write_text(json.dumps(record))
+
+
 class MultirunReport(Callback):
-    """Opens the multirun's MLflow run before the jobs, combines their results after them."""
-
-    def on_multirun_start(self, config, **kwargs) -> None:
-        from gtsweep.tracking.tags import overrides_name
-
-        sweep_dir = Path(config.hydra.sweep.dir)
-        sweep_dir.mkdir(parents=True, exist_ok=True)
-        overrides = list(config.hydra.overrides.task)
-        record = {**multirun_record(sweep_dir), "swept": swept_keys(overrides)}
-        if config.mlflow.enabled:
-            from gtsweep.tracking.sweep import open_multirun
-
-            swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record["swept"]]
-            record["parent_run_id"] = open_multirun(config.mlflow, "multirun " + overrides_name(swept, ""),
-                                                    sweep_dir, record.get("parent_run_id"))
-        (sweep_dir / MULTIRUN_RECORD).write_text(json.dumps(record))
+    """Combines the jobs' results after them and closes the multirun's MLflow run."""
 
     def on_multirun_end(self, config, **kwargs) -> None:
         from gtsweep.core.errors import GtsweepError

@@ -9,7 +9,7 @@
   (checked before any work): Hydra has no ranges.
 
 Hydra sets struct mode on the composed config, so an unknown key and a value of the wrong type are Hydra's own
-errors (:mod:`gtsweep.cli.preflight` makes them gtsweep's one line).
+errors (:mod:`gtsweep.cli.checks` makes them gtsweep's one line).
 """
 from __future__ import annotations
 
@@ -73,3 +73,14 @@ def register_schemas() -> None:
         for name, method in registry.items():
             store.store(group=f"{SCHEMA_GROUP}/{group}", name=name, node=method_schema(name, method.defaults))
     store.store(group=SCHEMA_GROUP, name="run", node=run_schema())
+    register_sweeper()
+
+
+def register_sweeper() -> None:
+    """gtsweep's sweeper (``hydra/sweeper: gtsweep``) known to Hydra in this process, also where Hydra's plugin
+    discovery does not look (an editable install's package finder)."""
+    from hydra.core.plugins import Plugins
+
+    from hydra_plugins.gtsweep_sweeper import GtsweepSweeper  # also stores its config node
+
+    Plugins.instance().register(GtsweepSweeper)

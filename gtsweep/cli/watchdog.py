@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
-from gtsweep.cli.lifecycle import RAYLET_LOST, end_ray_processes, failure_line
+from gtsweep.cli.lifecycle import RAYLET_LOST, failure_line
+from gtsweep.orchestration.cluster import end_ray_processes
 
 DONE = b"done\n"
 POLL_S = 0.5

@@ -21,6 +21,15 @@ def nearest(word: str, candidates) -> list[str]:
     return difflib.get_close_matches(str(word), [str(c) for c in candidates], n=1, cutoff=0.6)
 
 
+def causes(error: BaseException | None):
+    """``error`` and the exceptions behind it (its cause, else its context), each once."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        yield error
+        error = error.__cause__ or error.__context__
+
+
 class BadInput(GtsweepError):
     """Missing, unreadable or malformed input (image, pose file, data set folder, override)."""
 

@@ -9,7 +9,10 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import threading
 from typing import Iterator
+
+from gtsweep.core.errors import causes
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _pending: list[int] = []
@@ -88,3 +91,26 @@ def raise_pending() -> None:
 def clear() -> None:
     _pending.clear()
     _deferring["arrived"].clear()
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """SIGINT and SIGTERM raise :class:`Interrupted` (once: later signals are ignored while it cleans up)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.getsignal(s) for s in SIGNALS}
+    for s in SIGNALS:
+        signal.signal(s, on_signal)
+    try:
+        yield
+    finally:
+        for s, old in previous.items():
+            signal.signal(s, old)
+        clear()
+
+
+def interruption(error: BaseException) -> Interrupted | None:
+    """The :class:`Interrupted` behind ``error``: Ray's compiled code turns an exception raised by a signal
+    handler during ``ray.wait`` into a ``SystemError`` caused by it."""
+    return next((e for e in causes(error) if isinstance(e, Interrupted)), None)

@@ -10,8 +10,10 @@ tuned method files only, ``<group>/tuned/<name>.yaml`` of a method group, never 
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 
+from hydra._internal.core_plugins.file_config_source import FileConfigSource
 from hydra.core.object_type import ObjectType
 from hydra.core.plugins import Plugins
 from hydra.plugins.config_source import ConfigLoadError, ConfigResult, ConfigSource
@@ -69,6 +71,70 @@ class TunedMethods(ConfigSource):
         return sorted(set(found))
 
 
+#: The option of a method group that stands for every option of the group (``detector=all``).
+ALL = "all"
+
+
+class EveryOption(ConfigSource):
+    """``every://``: the config ``<method group>/all``, whose defaults list selects every option of the group
+    (:func:`options_of`) on the search path it is composed from, so that ``detector=all`` is Hydra's own choice of
+    an option in a single run and in every job of ``-m``. It lists nothing (``all`` is not a file)."""
+
+    @staticmethod
+    def scheme() -> str:
+        return "every"
+
+    def available(self) -> bool:
+        return True
+
+    def is_group(self, config_path: str) -> bool:
+        return False
+
+    def is_config(self, config_path: str) -> bool:
+        group, _, name = config_path.removesuffix(".yaml").strip("/").partition("/")
+        return group in METHOD_GROUPS and name == ALL
+
+    def list(self, config_path: str, results_filter: ObjectType | None) -> list[str]:
+        return []
+
+    def load_config(self, config_path: str) -> ConfigResult:
+        from omegaconf import OmegaConf
+
+        if not self.is_config(config_path):
+            raise ConfigLoadError(f"Config not found : {config_path} in {self.full_path()}")
+        group = config_path.strip("/").partition("/")[0]
+        every = options_of(Configs.of(s for s in _searched_with(self) if s is not self), group)
+        return ConfigResult(config=OmegaConf.create({"defaults": every}), path=self.full_path(),
+                            provider=self.provider, header={"package": None})
+
+
+def _searched_with(source: ConfigSource) -> list[ConfigSource]:
+    """The sources of the config repository that asks ``source`` for a config (Hydra hands a source no reference
+    to its siblings; the repository is the caller's ``self``, a few frames up)."""
+    frame = sys._getframe(1)
+    while frame is not None:
+        sources = getattr(frame.f_locals.get("self"), "sources", None)
+        if isinstance(sources, list) and any(s is source for s in sources):
+            return sources
+        frame = frame.f_back
+    raise ConfigLoadError(f"{source.full_path()}: no config repository asked for it")
+
+
+#: ``(group, names) -> names``: which options ``group=all`` and ``glob()`` may take (:func:`choose_options_with`).
+_choosable = {"of": lambda group, names: names}
+
+
+def choose_options_with(function) -> None:
+    """Let ``function(group, names)`` pick the options ``all`` and ``glob()`` choose from (the command line leaves
+    out the methods this install cannot run)."""
+    _choosable["of"] = function
+
+
+def options_of(configs: "Configs", group: str) -> list[str]:
+    """What ``group=all`` and ``group=glob(...)`` choose from: the options of ``group`` on the search path."""
+    return _choosable["of"](group, [name for name in configs.options(group) if name != ALL])
+
+
 def stray_tuned_files(root: str | os.PathLike) -> list[str]:
     """The YAML files under ``root`` (the working directory's ``./tuned``) that are not tuned method files
     (``<method group>/tuned/<name>.yaml``): Hydra never sees them, and a config planted there (a preset, a method)
@@ -84,19 +150,63 @@ def stray_tuned_files(root: str | os.PathLike) -> list[str]:
     return sorted(found)
 
 
+class DeclaredMethods(FileConfigSource):
+    """``file://`` as Hydra reads it, but a method declared in YAML (``<method group>/<name>.yaml`` holding
+    ``factory:``, ``params:``..., not keyed by its name) is keyed by its option name when loaded: its keys land at
+    ``<group>.<name>``, beside the package's methods, and Hydra checks overrides of it like any other."""
+
+    def load_config(self, config_path: str) -> ConfigResult:
+        return keyed_by_name(super().load_config(config_path), config_path)
+
+
+def keyed_by_name(result: ConfigResult, config_path: str) -> ConfigResult:
+    """``result`` with its content under its option name if it is a method group's option that declares a method."""
+    from omegaconf import OmegaConf
+
+    parts = config_path.removesuffix(".yaml").strip("/").split("/")
+    if len(parts) != 2 or parts[0] not in METHOD_GROUPS or result.header.get("package"):
+        return result
+    content = OmegaConf.to_container(result.config) if OmegaConf.is_dict(result.config) else None
+    defaults = content.pop("defaults", None) if content else None
+    if not content or set(content) == {parts[1]}:
+        return result
+    result.config = OmegaConf.create({**({"defaults": defaults} if defaults is not None else {}),
+                                      parts[1]: content})
+    return result
+
+
 def register_sources() -> None:
-    """Make the ``tuned://`` scheme known to Hydra in this process (the CLI's and every launcher worker's)."""
+    """Make gtsweep's config sources known to Hydra in this process (the CLI's and every launcher worker's):
+    ``tuned://``, ``every://`` and ``file://`` with declared methods keyed by name (it takes the place of Hydra's
+    own reader of ``file://``, which Hydra's registry keeps one of per scheme)."""
+    from hydra._internal.sources_registry import SourcesRegistry
+
     Plugins.instance().register(TunedMethods)
+    Plugins.instance().register(EveryOption)
+    SourcesRegistry.instance().types[DeclaredMethods.scheme()] = DeclaredMethods
 
 
 class Configs:
     """The config files on a search path (``file://dir``, ``pkg://package``, ``tuned://dir`` entries, in order)."""
 
     def __init__(self, entries):
+        from hydra._internal.sources_registry import SourcesRegistry
+
+        from gtsweep.core.paths import mount_checkout_configs
+
+        mount_checkout_configs()  # a checkout's sweeps/ under gtsweep.conf, as in the wheel (before it is imported)
         register_sources()
-        kinds = {kind.scheme(): kind for kind in Plugins.instance().discover(ConfigSource)}
         self.entries = tuple(entries)
-        self.sources = [kinds[entry.split("://")[0]]("gtsweep", entry) for entry in self.entries]
+        self.sources = [SourcesRegistry.instance().resolve(entry.split("://")[0])("gtsweep", entry)
+                        for entry in self.entries]
+
+    @classmethod
+    def of(cls, sources) -> "Configs":
+        """The configs of Hydra's own sources (a running composition's)."""
+        found = cls(())
+        found.sources = list(sources)
+        found.entries = tuple(f"{s.scheme()}://{s.path}" for s in found.sources)
+        return found
 
     def _listing(self, path: str, kind: ObjectType) -> set[str]:
         return {name for source in self.sources if source.available() and source.is_group(path)

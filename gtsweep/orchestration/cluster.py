@@ -3,15 +3,20 @@
 The address is picked as ``ray.init()`` picks it (:func:`cluster_address`: ``runner.address``, else
 ``$RAY_ADDRESS``, else an embedded Ray); a ``host:port`` must answer within ``runner.connect_timeout_s`` as Ray's GCS
 does (:func:`check_address`), before the MLflow parent run is created; once Ray is up, its address, nodes and CPUs
-are printed and kept for ``run.json`` (:func:`record_cluster`, :func:`cluster_record`).
+are printed and kept for ``run.json`` (:func:`record_cluster`, :func:`cluster_record`). When a run stops,
+:func:`stop_workers` ends Ray and every Ray process this command started (:func:`leftover_ray_processes`).
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import re
+import signal
 import socket
 import sys
 import time
+from pathlib import Path
 from typing import Mapping
 
 from gtsweep.core.errors import BadInput
@@ -123,3 +128,107 @@ def record_cluster() -> None:
     line = f"Ray cluster at {_cluster['address']}: {_cluster['nodes']} node(s), {_cluster['cpus']} CPUs"
     log.info(line)
     print(f"gtsweep: {line}", file=sys.stderr)
+
+
+STOP_ROUNDS, STOP_PAUSE_S = 10, 0.2
+_stopped = {"ray": False}  # whether stop_workers ended this process's Ray
+
+
+def stop_workers() -> None:
+    """Shut down Ray if this process started or joined it, then end Ray's processes of this command that outlived
+    it (a Ctrl-C that reaches the whole process group while Ray starts can kill the raylet before its agents).
+    A raylet can still be starting an agent while it is ended, so the search repeats until it finds nothing."""
+    ray = sys.modules.get("ray")
+    if ray is None:
+        return
+    if ray.is_initialized():
+        with contextlib.suppress(Exception):
+            ray.shutdown()
+    _stopped["ray"] = True
+    end_ray_processes(os.path.dirname(getattr(ray, "__file__", None) or "") or None)
+
+
+def end_ray_processes(ray_dir: str | None, owner: int | None = None) -> None:
+    """End the Ray processes of ``owner``'s command (:func:`leftover_ray_processes`; default: this process), until
+    none is found (a raylet can still be starting an agent while it is ended)."""
+    for _ in range(STOP_ROUNDS):
+        leftovers = leftover_ray_processes(ray_dir=ray_dir, owner=owner)
+        if not leftovers:
+            return
+        for pid in leftovers:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        time.sleep(STOP_PAUSE_S)
+
+
+def ray_stopped() -> bool:
+    """Whether :func:`stop_workers` ended this process's Ray."""
+    return _stopped["ray"]
+
+
+#: Ray names a node's session after the process that starts it: ``session_<date>_<time>_<microseconds>_<pid>``
+#: (``ray._private.node.Node``); every process of the node names that folder in its command line or its open files.
+SESSION = re.compile(rb"session_\d{4}-\d\d-\d\d_\d\d-\d\d-\d\d_\d+_(\d+)(?![\d])")
+
+
+def leftover_ray_processes(proc: Path = Path("/proc"), ray_dir: str | None = None,
+                           owner: int | None = None) -> list[int]:
+    """Ray's processes that this command started, and nothing else's (Linux; elsewhere none): a Ray program
+    (``ray::...``, raylet, GCS, or a script of Ray's package in ``ray_dir``) that descends from ``owner`` (default:
+    this process; the watchdog names its dead sweep), or that names the Ray session ``owner`` started (by its pid)
+    and began after this process. An orphaned agent is found whatever its process group; a cluster the user
+    started with ``ray start`` (another session) or another command's Ray is never matched."""
+    me = os.getpid()
+    owner = owner or me
+    table = _processes(proc, ray_dir)
+    if me not in table:
+        return []
+    born = table[me]["start"]
+
+    def descends(pid: int) -> bool:
+        seen = set()
+        while pid not in (0, 1) and pid not in seen:
+            seen.add(pid)
+            pid = table.get(pid, {}).get("ppid", 0)
+            if pid == owner:
+                return True
+        return False
+
+    def names_my_session(pid: int) -> bool:
+        texts = [table[pid]["cmdline"], *_open_files(proc / str(pid))]
+        return table[pid]["start"] >= born and any(
+            int(m.group(1)) == owner for text in texts for m in SESSION.finditer(text))
+
+    return sorted(pid for pid, info in table.items()
+                  if pid not in (me, owner) and info["ray"] and (descends(pid) or names_my_session(pid)))
+
+
+def _processes(proc: Path, ray_dir: str | None) -> dict[int, dict]:
+    """pid -> parent, start time (clock ticks after boot), command line and whether it is a Ray program."""
+    marker = os.fsencode(ray_dir.rstrip("/") + "/") if ray_dir else None
+    table = {}
+    for entry in proc.glob("[0-9]*"):
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+        except (OSError, ValueError, IndexError):
+            continue
+        program = argv[0]
+        ray = program.startswith(b"ray::") or os.path.basename(program) in (b"raylet", b"gcs_server") or (
+            marker is not None and any(arg.startswith(marker) for arg in argv[:3]))
+        try:
+            table[int(entry.name)] = {"ppid": int(fields[1]), "start": int(fields[19]), "ray": ray,
+                                      "cmdline": b" ".join(argv)}
+        except (ValueError, IndexError):
+            continue
+    return table
+
+
+def _open_files(process: Path) -> list[bytes]:
+    """Where ``process``'s file descriptors point (its logs in the Ray session folder); none if not readable."""
+    targets = []
+    with contextlib.suppress(OSError):
+        for fd in (process / "fd").iterdir():
+            with contextlib.suppress(OSError):
+                targets.append(os.fsencode(os.readlink(fd)))
+    return targets

@@ -20,7 +20,6 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.plugins import enable as enable_plugins
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.orchestration.settings import check_settings
 from gtsweep.stages import device as devices
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
@@ -219,8 +218,8 @@ def _check_transform(name: str, settings: dict) -> None:
 
 
 def build_grid(cfg: Mapping) -> Grid:
-    """The cells of the sweep described by ``cfg`` (the composed Hydra config); every setting checked first."""
-    check_settings(cfg)
+    """The cells of the sweep described by ``cfg`` (the composed Hydra config, its run settings checked where it
+    was composed)."""
     experiment = plain(cfg.get("experiment")) or {}
     if experiment.get("name") not in PAIR_EXPERIMENTS:
         raise BadInput(f"experiment must be one of {', '.join(PAIR_EXPERIMENTS)}, got {experiment.get('name')!r}")

@@ -25,7 +25,6 @@ from gtsweep.orchestration import loctasks
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import declared_methods, pairings_of, resolve_group, selectors_of, with_survey_method
 from gtsweep.orchestration.runner import RunStats
-from gtsweep.orchestration.settings import check_settings
 from gtsweep.orchestration.skeleton import CellWork, SweepOutcome, run_sweep
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
@@ -94,8 +93,8 @@ class LocGrid:
 
 
 def build_localization_grid(cfg: Mapping) -> LocGrid:
-    """The localization cells of ``cfg``; every setting and method checked first (one line on bad input)."""
-    check_settings(cfg)
+    """The localization cells of ``cfg``; its experiment's settings and methods checked first (one line on bad
+    input; the run settings are checked where the job is composed)."""
     check_all({"experiment": plain(cfg.get("experiment")) or {}}, SETTINGS)
     check_data_options(plain(cfg.get("experiment")) or {})
     grid = LocGrid(plain(cfg.get("experiment")) or {}, resolve_group(cfg, "detector"),
@@ -145,7 +144,7 @@ def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, 
     """Submit the map and query tasks of ``cells`` and report each cell as its query shards come in."""
     import pandas as pd
 
-    size = int(runner_cfg.get("shard_size", 4))
+    size = int(runner_cfg["shard_size"])
     experiment = grid.experiment
     # mapping images are read in their tasks (a real map has thousands); the queries here, once
     mapping = {t: [{"path": s.path, "pose": s.pose} for s in samples] for t, samples in data.maps.items()}

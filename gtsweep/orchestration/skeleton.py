@@ -244,7 +244,7 @@ def _evaluate_pairs(grid: Grid, data: PairData, cells: list, runner_cfg: dict, s
     # Load (and so check) every image the cells read before the first result file is written: bad data stops the
     # run clean.
     transforms = {name: grid.transforms[name] for name in sorted({cell.transform for cell in cells})}
-    shards = load_shards(data.dataset, transforms, int(runner_cfg.get("shard_size", 4)))
+    shards = load_shards(data.dataset, transforms, int(runner_cfg["shard_size"]))
     jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, {cell.key for cell in cells})
     return run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish, on_started=on_started)
 

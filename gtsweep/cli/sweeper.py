@@ -1,0 +1,70 @@
+"""The sweeper of ``-m``: Hydra's basic sweeper, with ``group=glob(...)`` over the whole search path and every
+job composed and checked before the first one runs.
+
+Hydra's own glob lists the options of its main directory only; here a glob of a config group is replaced by the
+options it matches on the search path the multirun composes from (:func:`gtsweep.core.searchpath.options_of`),
+as a choice sweep. Hydra's sweeper composes every job of a batch before launching it anyway
+(``validate_batch_is_legal``); here it is every job of every batch, each checked (:func:`gtsweep.cli.checks.
+check_job`), and a mistake is one line and exit code 2 before any job runs. Only then is the multirun's directory
+claimed (:func:`gtsweep.cli.runs.start_sweep_dir`) and its MLflow run opened.
+"""
+from __future__ import annotations
+
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+
+from gtsweep.cli.checks import SINGLE_GROUPS, check_job, translate
+from gtsweep.cli.search import GRID_GROUPS
+from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.core.searchpath import Configs, configs_of_sources, options_of
+
+
+def globbed(override: str, found: Configs) -> str:
+    """``group=glob(...)`` as the choice sweep of the options it matches on the search path; others as they are."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    group, _, value = override.partition("=")
+    if group not in (*GRID_GROUPS, *SINGLE_GROUPS) or not value.startswith("glob("):
+        return override
+    try:
+        matches = OverridesParser.create().parse_override(override).value().filter(options_of(found, group))
+    except HydraException as e:
+        raise BadInput(f"cannot parse '{override}': {str(e).splitlines()[0]}") from None
+    if not matches:
+        raise BadInput(f"'{override}' matches no {group}; choices: {', '.join(options_of(found, group))}")
+    return f"{group}={','.join(matches)}"
+
+
+class CheckingSweeper(BasicSweeper):
+    """Globs over the search path; every job checked before any runs (see the module)."""
+
+    def sweep(self, arguments):
+        from hydra.core.override_parser.overrides_parser import OverridesParser
+
+        from gtsweep.cli.multirun import open_multirun_run
+        from gtsweep.cli.lifecycle import fail
+        from gtsweep.cli.runs import start_sweep_dir
+
+        found = configs_of_sources(self.config.hydra.runtime.config_sources)
+        try:
+            self.params = {key: globbed(f"{key}={value}", found).partition("=")[2]
+                           for key, value in (self.params or {}).items()}
+            arguments = [globbed(argument, found) for argument in arguments]
+            parsed = OverridesParser.create().parse_overrides([*self._parse_config(), *arguments])
+        except Exception as e:  # noqa: BLE001 - Hydra's parser errors, translated
+            fail(translate(e, arguments, found))
+        loader = self.hydra_context.config_loader
+        for job in self.split_arguments(parsed, None)[0]:
+            try:
+                check_job(loader.load_sweep_config(self.config, list(job)), job, found)
+            except Exception as e:  # noqa: BLE001 - Hydra's and OmegaConf's errors, translated
+                fail(translate(e, job, found))
+        try:
+            start_sweep_dir(self.config)
+            open_multirun_run(self.config)
+        except GtsweepError as e:
+            fail(e)
+        return super().sweep(arguments)
+
+    def validate_batch_is_legal(self, batch) -> None:
+        """Every job was composed and checked before the first batch (:meth:`sweep`)."""
