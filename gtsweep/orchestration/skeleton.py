@@ -219,7 +219,7 @@ def _added(a: RunStats, b: RunStats) -> RunStats:
 
 def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
     dataset = load_dataset(cfg["dataset"])
-    for kind in [name for name, transform in grid.transforms.items() if transform["kind"] == "pairs"]:
+    for kind in [name for name, transform in grid.transforms.items() if transform.get("kind") == "pairs"]:
         if not dataset.pairs(kind):  # a data set too small for the pair rules: one line before any work
             why = dataset.empty_kinds.get(kind, f"dataset.n_{kind}?")
             raise BadInput(f"data set '{dataset.name}' has no {kind} pairs: {why}")
