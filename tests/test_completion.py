@@ -81,6 +81,8 @@ def test_bash_completes_groups_lists_and_tuned_names():
     assert Path(gtsweep).exists(), "the console script: pip install -e ."
     # bash replaces its own current word: what follows the "=" (COMP_WORDBREAKS), so the replies start there
     assert _bash_completions([gtsweep], ["detector=s"]) == ["sift", "surf"]
+    # right after "detector=" bash's word is "=" but readline replaces the empty text after it: no second "="
+    assert "agast" in _bash_completions([gtsweep], ["detector="])
     assert _bash_completions([gtsweep], ["detector=[s"]) == ["[sift", "[surf"]
     assert _bash_completions([gtsweep], ["-m", "detector=[sift,o"]) == ["[sift,orb"]
     tuned = _bash_completions([gtsweep], ["detector=tuned/"])

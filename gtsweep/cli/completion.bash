@@ -11,10 +11,13 @@ _gtsweep_completion()
         fi
         command=("${COMP_WORDS[0]}" -m gtsweep)
     fi
-    # the whole word before the cursor, and the part of it that bash replaces (bash splits at = and :)
+    # the whole word before the cursor, and the part of it that readline replaces: what follows its last "=" or
+    # ":" (COMP_WORDBREAKS). Not COMP_WORDS[COMP_CWORD]: right after "detector=" that word is "=" while readline
+    # replaces the empty text after it, so replies cut by COMP_WORDS would insert a second "=".
     local word="${COMP_LINE:0:COMP_POINT}"
     word="${word##*[[:space:]]}"
-    local cut=$(( ${#word} - ${#COMP_WORDS[COMP_CWORD]} ))
+    local text="${word##*[=:]}"
+    local cut=$(( ${#word} - ${#text} ))
     local choice
     COMPREPLY=()
     for choice in $(COMP_LINE="$COMP_LINE" COMP_POINT="$COMP_POINT" "${command[@]}" -sc query=bash 2>/dev/null); do
