@@ -4,7 +4,19 @@ from __future__ import annotations
 import logging
 import sys
 
+import pytest
+
 from gtsweep.orchestration.progress import Progress
+
+
+@pytest.fixture(autouse=True)
+def no_other_handlers(monkeypatch):
+    """Each test sees only the logging handlers it adds: earlier tests in the session leave handlers bound to
+    streams that are closed by now (Hydra's, pytest's captures), which the bar would redirect."""
+    loggers = [logging.getLogger(), *(x for x in logging.Logger.manager.loggerDict.values()
+                                      if isinstance(x, logging.Logger))]
+    for logger in loggers:
+        monkeypatch.setattr(logger, "handlers", [])
 
 
 class Terminal:
