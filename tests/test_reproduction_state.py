@@ -114,3 +114,18 @@ def test_committed_state_restores_to_the_recorded_verdicts(tmp_path):
     assert {p.name for p in written} == set(held.presets)
     checks = verify.check(looks.replay(held, 0.05))
     assert all(c.equal for c in checks), "\n".join(verify.report(checks))
+
+
+def test_committing_files_already_committed_is_done_at_once(tmp_path):
+    import subprocess
+
+    from gtsweep.reproduction.collect import commit_state
+
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    subprocess.run(["git", "-C", str(tmp_path), "config", "user.email", "t@t"], check=True)
+    subprocess.run(["git", "-C", str(tmp_path), "config", "user.name", "t"], check=True)
+    (tmp_path / "plan.json").write_text("{}\n")
+    assert commit_state(tmp_path, [tmp_path / "plan.json"], "plan", tries=1)
+    assert commit_state(tmp_path, [tmp_path / "plan.json"], "plan again", tries=1)  # unchanged: no retries
+    log = subprocess.run(["git", "-C", str(tmp_path), "log", "--oneline"], capture_output=True, text=True).stdout
+    assert len(log.splitlines()) == 1

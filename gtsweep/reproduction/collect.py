@@ -114,10 +114,12 @@ def commit_state(folder: Path, paths: list[Path], message: str, log=print, tries
     repo = Path(folder).resolve()
     for attempt in range(tries):
         added = subprocess.run(["git", "add", "--", *map(str, paths)], cwd=repo, capture_output=True, text=True)
-        done = added.returncode == 0 and subprocess.run(
+        unchanged = added.returncode == 0 and subprocess.run(
+            ["git", "diff", "--cached", "--quiet", "--", *map(str, paths)], cwd=repo).returncode == 0
+        done = unchanged or (added.returncode == 0 and subprocess.run(
             ["git", "commit", "-q", "-m", message, "--", *map(str, paths)], cwd=repo, capture_output=True,
-            text=True).returncode == 0
-        if done:
+            text=True).returncode == 0)
+        if done:  # committed, or already committed as they are
             return True
         time.sleep(5 * (attempt + 1))
     log(f"gtsweep.reproduction: could not commit {len(paths)} state file(s) in {repo}; they stay for the next commit")
