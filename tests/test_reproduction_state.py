@@ -129,3 +129,26 @@ def test_committing_files_already_committed_is_done_at_once(tmp_path):
     assert commit_state(tmp_path, [tmp_path / "plan.json"], "plan again", tries=1)  # unchanged: no retries
     log = subprocess.run(["git", "-C", str(tmp_path), "log", "--oneline"], capture_output=True, text=True).stdout
     assert len(log.splitlines()) == 1
+
+
+def test_collect_stops_in_one_line_on_sigterm(monkeypatch, tmp_path, capsys):
+    """A background run ignores SIGINT: SIGTERM stops collect cleanly, with one line and 128 + 15."""
+    import signal
+
+    from gtsweep.core.interrupts import Interrupted
+    from gtsweep.reproduction import cli
+
+    def cut(*args, **kwargs):
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(cli, "collect", cut)
+    monkeypatch.setattr(cli, "check_plan", lambda held, wanted: None)
+    monkeypatch.setattr(cli, "plan", lambda: PLAN)
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        assert cli.main(["collect", "--state", str(tmp_path / "state"), "--work", str(tmp_path / "work")]) == 143
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "SIGTERM" in lines[0] and "the same command resumes" in lines[0]

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from datetime import datetime
@@ -17,6 +18,7 @@ from pathlib import Path
 import yaml
 
 from gtsweep.core.errors import BadInput
+from gtsweep.core.interrupts import SIGNALS, Interrupted, on_signal
 from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.reproduction.tuned import tuned_digest, tuning_fingerprint
@@ -107,12 +109,19 @@ def run(args) -> int:
         print(f"{left} in {folder} ({states.size_mb(folder):.1f} MB)")
         return 0
     ran, until = 0, _until(args.until)
-    while True:  # the new data's units exist once the rebuild's picks do
-        units, left = units_now(folder)
-        more = collect(units, folder, Path(args.work), plan(), args.commit, until, log)
-        ran += more
-        if not more or (until is not None and time.time() >= until):
-            break
+    for s in SIGNALS:  # also in the background, where a shell leaves SIGINT ignored: SIGTERM stops it cleanly
+        signal.signal(s, on_signal)
+    try:
+        while True:  # the new data's units exist once the rebuild's picks do
+            units, left = units_now(folder)
+            more = collect(units, folder, Path(args.work), plan(), args.commit, until, log)
+            ran += more
+            if not more or (until is not None and time.time() >= until):
+                break
+    except Interrupted as e:
+        print(f"gtsweep.reproduction: {e}; {ran} chunk(s) this run are in the state, the cut one's finished cells "
+              f"wait in {args.work}: the same command resumes", file=sys.stderr)
+        return 128 + e.signum
     log(f"gtsweep.reproduction: {ran} chunk(s) this run; {units_now(folder)[1]}")
     return 0
 
