@@ -79,7 +79,7 @@ def sift_ambiguous_final(data):
     if "sift" not in cells or median not in cells:
         return []
     large = pair_claim(data, f"sift vs median detector {median} (frozen round-5 pick)", BEATS, AMBIGUITY_MARGIN,
-                  cells["sift"], cells[median], "ambiguity", half=old_half1_and_new(ROUNDS_SYNTHETIC))
+                       cells["sift"], cells[median], "ambiguity", half=old_half1_and_new(ROUNDS_SYNTHETIC))
     about = against(cells["sift"], "ambiguity", data.views, 1.5, confidence=1 - 2 * data.alpha)
     return [large, Claim("sift ambiguity - 1.5", about, WITHIN, AMBIGUITY_MARGIN)]
 
@@ -89,7 +89,7 @@ def sift_best_on_synthetic_final(data):
     if "sift-sift" not in entries or rival not in entries:
         return []
     return [pair_claim(data, f"sift-sift vs {rival} (frozen round-5 pick)", AMONG, SUCCESS_MARGIN, entries["sift-sift"],
-                  entries[rival], "pose_success", half=old_half1_and_new(ROUNDS_SYNTHETIC))]
+                       entries[rival], "pose_success", half=old_half1_and_new(ROUNDS_SYNTHETIC))]
 
 
 # --- restated findings (new data only) ---------------------------------------------------------------------------
@@ -102,7 +102,7 @@ def selectors_restated(data):
         for rival in sorted({"nms", "anms", "bucketing"} - {mine}):
             if mine in sel and rival in sel and not (keeps_all(sel[rival]) and keeps_all(sel[mine])):
                 parts.append(pair_claim(data, f"{det} {mine.upper()} vs {rival.upper()}", kind, REPEATABILITY_MARGIN,
-                                   sel[mine], sel[rival], "repeatability", half=test))
+                                        sel[mine], sel[rival], "repeatability", half=test))
     return parts
 
 
@@ -117,52 +117,57 @@ def best_repeatability_restated(data):
     return best_part + span
 
 
+#: Finding 5's named detectors; its restated form compares each with the median of the others.
+LOW_AMBIGUITY = ("surf", "censure", "akaze")
+
+
+def _median_other(data, cells: dict, metric: str) -> str | None:
+    """The detector nearest the median of those finding 5 does not name, on half 0 of the rounds' images."""
+    return median_entry(data, cells, metric, LOW_AMBIGUITY, half=old_half(0, ROUNDS_SYNTHETIC))
+
+
+def _incremental_picks(data) -> tuple[dict, dict, str | None, str | None]:
+    """Finding 6''s entries: every incremental pairing, the six of CenSurE and MSD with ORB, BRIEF and LATCH, and
+    the best of those six and the best other, both picked on half 0 of the rounds' pairs."""
+    entries = pairings(data, ["incremental"])
+    mine = {k: v for k, v in entries.items() if k.split("-")[0] in ("censure", "msd")
+            and k.split("-")[1] in ("orb", "brief", "latch")}
+    pick = old_half(0, ROUNDS_INCREMENTAL)
+    others = {k: v for k, v in entries.items() if k not in mine}
+    return entries, mine, best(data, mine, "pose_success", half=pick), best(data, others, "pose_success", half=pick)
+
+
 def low_ambiguity_restated(data):
     """5': SURF, CenSurE and AKAZE (non-wood) beat the median other detector in repeatability and ambiguity."""
     cells = table3(data)
-    named = [x for x in ("surf", "censure", "akaze") if x in cells]
-    pick = old_half(0, ROUNDS_SYNTHETIC)
+    named = [x for x in LOW_AMBIGUITY if x in cells]
     parts = []
     for metric, sign, margin in (("repeatability", 1, REPEATABILITY_MARGIN), ("ambiguity", -1, AMBIGUITY_MARGIN)):
-        median = median_entry(data, cells, metric, tuple(named), half=pick)
+        median = _median_other(data, cells, metric)
         if median is None:
             return []
         for x in named:
             test = numbered(ROUNDS_SYNTHETIC, skip_texture=NON_WOOD if x == "akaze" else None)
             where = " (non-wood)" if x == "akaze" else ""
             parts.append(pair_claim(data, f"{x}{where} {metric} vs median other {median} (on half 0)", BEATS, margin,
-                               cells[x], cells[median], metric, sign=sign, half=test))
+                                    cells[x], cells[median], metric, sign=sign, half=test))
     return parts
 
 
 def censure_or_msd_best_restated(data):
     """6': the best of CenSurE and MSD with ORB, BRIEF, LATCH vs the best other pairing (picked on half 0)."""
-    entries = pairings(data, ["incremental"])
-    mine = {k: v for k, v in entries.items() if k.split("-")[0] in ("censure", "msd")
-            and k.split("-")[1] in ("orb", "brief", "latch")}
-    pick = old_half(0, ROUNDS_INCREMENTAL)
-    top = best(data, mine, "pose_success", half=pick)
-    rival = best(data, {k: v for k, v in entries.items() if k not in mine}, "pose_success", half=pick)
+    entries, mine, top, rival = _incremental_picks(data)
     if top is None or rival is None:
         return []
     return [pair_claim(data, f"{top} vs {rival} (both best on half 0)", AMONG, SUCCESS_MARGIN, mine[top],
-                  entries[rival], "pose_success", half=numbered(ROUNDS_INCREMENTAL))]
+                       entries[rival], "pose_success", half=numbered(ROUNDS_INCREMENTAL))]
 
 
 def picks_restated(data_table3, data_table4) -> dict[str, str | None]:
     """The restated findings' picks (half 0 of the rounds' images): which cells their new data needs."""
     cells = table3(data_table3)
-    named = ("surf", "censure", "akaze")
-    pick3 = old_half(0, ROUNDS_SYNTHETIC)
-    found = {f"median_{m}": median_entry(data_table3, cells, m, named, half=pick3)
-             for m in ("repeatability", "ambiguity")}
-    entries = pairings(data_table4, ["incremental"])
-    mine = {k: v for k, v in entries.items() if k.split("-")[0] in ("censure", "msd")
-            and k.split("-")[1] in ("orb", "brief", "latch")}
-    pick4 = old_half(0, ROUNDS_INCREMENTAL)
-    found["censure_or_msd"] = best(data_table4, mine, "pose_success", half=pick4)
-    found["other_incremental"] = best(data_table4, {k: v for k, v in entries.items() if k not in mine},
-                                      "pose_success", half=pick4)
+    found = {f"median_{m}": _median_other(data_table3, cells, m) for m in ("repeatability", "ambiguity")}
+    _, _, found["censure_or_msd"], found["other_incremental"] = _incremental_picks(data_table4)
     return found
 
 

@@ -52,9 +52,9 @@ def check_plan(held: dict | None, wanted: dict) -> None:
                        f"({'; '.join(f'{k}: {held.get(k)} vs {wanted[k]}' for k in other)})")
 
 
-def units_now(folder: Path) -> tuple[list, str]:
+def units_now(folder: Path, held: states.State | None = None) -> tuple[list, str]:
     """The units to run: the rebuild's, then (once Tables 3 and 4 are rebuilt: the restated picks read them) the
-    new data's; and a line on what is left."""
+    new data's; and a line on what is left. ``held``: the state of ``folder`` when already loaded."""
     from gtsweep.reproduction import amended
     from gtsweep.reproduction.looks import preset_data
 
@@ -62,7 +62,7 @@ def units_now(folder: Path) -> tuple[list, str]:
     done = done_units(folder)
     if not all(u.name in done for u in units):
         return units, f"{sum(u.name in done for u in units)} of {len(units)} rebuild chunks"
-    held = states.load(folder)
+    held = held or states.load(folder)
     picks = amended.picks_restated(preset_data(held, "table3_detectors", ALPHA),
                                    preset_data(held, "table4_incremental", ALPHA))
     records = {p: {k: c.record for k, c in cells.items()} for p, cells in held.presets.items()}
@@ -70,8 +70,8 @@ def units_now(folder: Path) -> tuple[list, str]:
     return units + new, f"rebuild done; {sum(u.name in done for u in new)} of {len(new)} new-data chunks"
 
 
-def done_parts(folder: Path) -> tuple[set[str], bool]:
-    units, _ = units_now(folder)
+def done_parts(folder: Path, held: states.State | None = None) -> tuple[set[str], bool]:
+    units, _ = units_now(folder, held)
     done = done_units(folder)
     parts = {p for p in NEW_WINDOWS if any(u.kind == p for u in units)
              and all(u.name in done for u in units if u.kind == p)}
@@ -101,7 +101,7 @@ def run(args) -> int:
         held = states.load(folder)
         log(f"gtsweep.reproduction: the renderer gives the recorded bytes for {checks.rerender(held, args.cache)} "
             f"sampled images or pairs")
-        parts, finished = done_parts(folder)
+        parts, finished = done_parts(folder, held)
         print(f"wrote {document.write(held, Path(args.docs), ALPHA, parts, finished, tuning_fingerprint())}")
         return 0
     if args.command == "status":
@@ -113,7 +113,7 @@ def run(args) -> int:
         signal.signal(s, on_signal)
     try:
         while True:  # the new data's units exist once the rebuild's picks do
-            units, left = units_now(folder)
+            units, _ = units_now(folder)
             more = collect(units, folder, Path(args.work), plan(), args.commit, until, log)
             ran += more
             if not more or (until is not None and time.time() >= until):

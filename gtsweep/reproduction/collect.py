@@ -19,32 +19,33 @@ import pandas as pd
 
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import PROJECT_DIR
-from gtsweep.reproduction import rounds as preset_runs
 from gtsweep.orchestration.cache import library_versions
+from gtsweep.reproduction import rounds
 from gtsweep.reproduction import state as states
 from gtsweep.reproduction.design import Unit
 
 
 def done_units(folder: Path) -> set[str]:
-    return {json.loads(p.read_text())["unit"] for p in (Path(folder) / "chunks").glob("*.json")}
+    return {record["unit"] for record in states.chunk_records(folder)}
 
 
-def cut_overrides(unit: Unit, held: states.State | None) -> list[str]:
-    """The overrides that cut the preset's grid to the unit's cells (their methods as the state holds them)."""
+def cut_overrides(unit: Unit, records: dict[str, dict[str, dict]]) -> list[str]:
+    """The overrides that cut the preset's grid to the unit's cells (their methods as the state's records hold
+    them: :func:`~gtsweep.reproduction.state.cell_records`)."""
     if unit.cells is None:
         return []
-    cells = (held.presets.get(unit.preset) if held else None) or {}
+    cells = records.get(unit.preset) or {}
     missing = [k for k in unit.cells if k not in cells]
     if missing:
         raise BadInput(f"{unit.name}: the state holds no record of cell(s) {', '.join(missing[:3])}: run the "
                        f"preset's first window first")
-    available = [c.record["methods"] for c in cells.values()]
-    return preset_runs.restriction(available, [cells[k].record["methods"] for k in unit.cells])[0]
+    available = [c["methods"] for c in cells.values()]
+    return rounds.restriction(available, [cells[k]["methods"] for k in unit.cells])[0]
 
 
 def harvest(output: Path, unit: Unit) -> tuple[dict, pd.DataFrame]:
-    """A finished sweep's cells of ``unit`` as one chunk: the cells' records and their rows (each checked to
-    cover exactly the unit's window of every texture the data set has)."""
+    """A finished sweep's cells of ``unit`` as one chunk: the cells' records and their rows (each checked to hold
+    rows of the unit's window of images or pairs only)."""
     cells, frames, items = {}, [], {}
     for path in sorted((Path(output) / "cells").glob("*.json")):
         summary = json.loads(path.read_text())
@@ -72,19 +73,20 @@ def harvest(output: Path, unit: Unit) -> tuple[dict, pd.DataFrame]:
 def _check_window(key: str, rows: pd.DataFrame, unit: Unit) -> None:
     numbers = set(rows["image"].map(states.item_number))
     if not numbers <= set(range(unit.start, unit.stop)):
-        raise BadInput(f"{unit.name}: cell {key} has rows of images or pairs outside numbers {unit.start}-{unit.stop - 1}")
+        raise BadInput(f"{unit.name}: cell {key} has rows of images or pairs outside numbers "
+                       f"{unit.start}-{unit.stop - 1}")
 
 
-def run_unit(unit: Unit, folder: Path, work: Path, held: states.State | None, commit: bool, log=print,
+def run_unit(unit: Unit, folder: Path, work: Path, records: dict, commit: bool, log=print,
              extra: list[str] = ()) -> str:
     """Run one unit and add its chunk to the state in ``folder``; returns the chunk's name. ``extra``: overrides
     after the unit's own (tests: a smaller data set)."""
     scratch = Path(work) / "scratch" / unit.name.replace("/", "_")
-    overrides = [*unit.overrides(), *cut_overrides(unit, held), *extra]  # the unit's counts replace the presets'
+    overrides = [*unit.overrides(), *cut_overrides(unit, records), *extra]  # the unit's counts replace the presets'
     log(f"gtsweep.reproduction: {unit.name} ({' '.join(overrides)})")
     started = time.time()
-    result = preset_runs.run_preset(unit.preset, overrides, scratch, f"sqlite:///{Path(work) / 'mlflow.db'}",
-                                    Path(work) / "cache")
+    result = rounds.run_preset(unit.preset, overrides, scratch, f"sqlite:///{Path(work) / 'mlflow.db'}",
+                               Path(work) / "cache")
     content, rows = harvest(result["output"], unit)
     record = {"unit": unit.name, "kind": unit.kind, "preset": unit.preset, "window": [unit.start, unit.stop],
               "split": unit.split, "overrides": overrides, **content, "wall_s": round(result["wall_s"], 1),
@@ -140,7 +142,6 @@ def collect(units: list[Unit], folder: Path, work: Path, plan: dict, commit: boo
         if until is not None and time.time() >= until:
             log(f"gtsweep.reproduction: stopping before {unit.name} (time is up); the same command resumes")
             break
-        held = states.load(folder) if unit.cells is not None else None
-        run_unit(unit, folder, work, held, commit, log, extra)
+        run_unit(unit, folder, work, states.cell_records(folder), commit, log, extra)
         ran += 1
     return ran

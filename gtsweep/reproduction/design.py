@@ -6,8 +6,10 @@ digest (:func:`design_digest`) enters the run's plan: no chunk of work starts un
 
 The work is a list of :class:`Unit` s, each one preset's cells on a window of image or pair numbers (per texture).
 The rebuild of rounds 1-5 (lost with the machine that ran them; every row is seeded by its view's id, so it can be
-computed again and must come out equal) takes each cell to the count it reached in round 5, as
-``docs/reproduction/<preset>__cell_counts.csv`` recorded it, in windows that end at the rounds' counts.
+computed again and must come out equal) takes each cell to the count it reached in round 5, as the round-5
+document recorded it (``docs/reproduction/reference/round5_cell_counts/``, kept apart from the generated
+``docs/reproduction/*__cell_counts.csv``, which a new document rewrites), in windows that end at the rounds'
+counts.
 """
 from __future__ import annotations
 
@@ -20,18 +22,15 @@ import pandas as pd
 
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import PROJECT_DIR
+from gtsweep.reproduction.rounds import KIND
 
 DESIGN_PAGE = PROJECT_DIR / "docs" / "statistics_design.md"
 AMENDMENT = "## Amendment of 2026-11-27"
-RECORDS = PROJECT_DIR / "docs" / "reproduction"
+RECORDS = PROJECT_DIR / "docs" / "reproduction" / "reference" / "round5_cell_counts"
 #: The rivals, medians and "best others" frozen at their round-5 picks on half 0 (amendment, A2).
 FROZEN = {"best_repeatability": "censure", "sift_ambiguous": "agast", "sift_best_on_synthetic": "surf-brisk"}
-#: Which split a preset's items come from, and the count of each round of ``--size decide`` they reached.
-SPLIT = {"table2_selectors": "synthetic", "table3_detectors": "synthetic", "table6_pairings": "synthetic",
-         "table4_incremental": "incremental", "table7_reference_features": "incremental",
-         "table5_absolute": "absolute"}
-ROUND_COUNTS = {"synthetic": (1, 2, 4, 8, 16, 100), "incremental": (6, 12, 25, 50, 100, 100),
-                "absolute": (6, 12, 25, 50, 100, 100)}
+#: The splits, in the order of a round's counts (:data:`~gtsweep.reproduction.rounds.ROUNDS`).
+SPLITS = ("synthetic", "incremental", "absolute")
 #: The rebuild's order: the open findings' presets first (amendment; issue: "start with the open findings' cells").
 REBUILD_ORDER = ("table3_detectors", "table6_pairings", "table2_selectors", "table4_incremental",
                  "table5_absolute", "table7_reference_features")
@@ -39,6 +38,11 @@ REBUILD_ORDER = ("table3_detectors", "table6_pairings", "table2_selectors", "tab
 REBUILD_BOUNDS = {"table2_selectors": (1,), "table3_detectors": (1, 4, 8, 12, 16), "table6_pairings": (4, 8, 12, 16),
                   "table4_incremental": (12, 25), "table5_absolute": (6, 12, 25, 50),
                   "table7_reference_features": (12, 25)}
+
+
+def split_of(preset: str) -> str:
+    """Which split a preset's images or pairs come from (its findings' clusters: :data:`rounds.KIND`)."""
+    return SPLITS[KIND[preset]]
 
 
 def amendment_text(page: Path = DESIGN_PAGE) -> str:
@@ -75,7 +79,7 @@ class Unit:
 
     @property
     def split(self) -> str:
-        return SPLIT[self.preset]
+        return split_of(self.preset)
 
     def overrides(self) -> list[str]:
         """The data set's counts and window: only this unit's images or pairs are rendered and evaluated."""

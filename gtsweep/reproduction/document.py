@@ -1,6 +1,6 @@
 """``docs/REPRODUCTION.md`` from the committed state alone: every look taken, nothing computed.
 
-The state's rows are restored as each preset's cells (:func:`~gtsweep.reproduction.state.restore`), rounds 1-5
+The state's rows are read as each preset's cells (:class:`~gtsweep.reproduction.state.State`), rounds 1-5
 are replayed on their prefixes (:func:`~gtsweep.reproduction.looks.replay`), the amendment's looks are taken where
 their data is complete, and the document gives for each finding its verdict, the look and n that decided it, the
 test, the margin with the survey's words, the correction and, for an undecided finding, the images that would
@@ -9,8 +9,6 @@ decide it at its last look's level and for a new study at alpha = 0.05.
 from __future__ import annotations
 
 import math
-import shutil
-import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -22,12 +20,12 @@ from gtsweep.evaluation.verdicts import UNDECIDED, images_to_decide
 from gtsweep.reproduction.rounds import PRESETS
 from gtsweep.report.tuning import tuning_table
 from gtsweep.reproduction.tuned import tuned_line
-from gtsweep.report.scale import annotate, load_scale
+from gtsweep.report.scale import annotate, scale_from_config
 from gtsweep.report.tables import build_tables
 from gtsweep.reproduction import looks as looking
 from gtsweep.reproduction import verify
 from gtsweep.reproduction.design import DESIGN_PAGE, NEW_WINDOWS
-from gtsweep.reproduction.state import State, restore
+from gtsweep.reproduction.state import State
 
 #: The fixed full protocol's cost on 2 cores, from the measured task costs after MSD's port (README, Performance).
 FULL_PROTOCOL_H = 18.8
@@ -138,39 +136,25 @@ def write(state: State, docs: Path, alpha: float, done_parts: set[str], finished
 
 
 def _tables(state: State, assets: Path, alpha: float) -> list[str]:
-    """Every preset's tables and counts per cell, from the state's rows restored as sweep outputs."""
+    """Every preset's tables and counts per cell, from the state's rows."""
     lines, counted, ties = ["", "## The tables", ""], [], []
-    work = Path(tempfile.mkdtemp(prefix="gtsweep-document-"))
-    try:
-        for output in restore(state, work):
-            preset = output.name
-            _survey_config(output)
-            summaries, views = state.summaries(preset), state.views(preset)
-            per_cell = cell_counts(summaries, views)
-            per_cell.to_csv(assets / f"{preset}__cell_counts.csv", index=False)
-            counted.append(f"| {preset} | {tally(per_cell)} |")
-            for table in build_tables(summaries, views, alpha):
-                if table.name != preset and not table.name.startswith(f"{preset}_"):
-                    continue
-                annotate([table], load_scale(output))
-                lines += ["", table.markdown(note=True)]
-                (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
-                if table.ties is not None and table.ties.best:
-                    ties.append(ties_row(table))
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    order = {p: i for i, p in enumerate(PRESETS)}
-    counted.sort(key=lambda row: order.get(row.split(" | ")[0].strip("| "), 99))
+    scale = scale_from_config({"dataset": yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())})
+    for preset in [p for p in PRESETS if p in state.presets]:
+        summaries, views = state.summaries(preset), state.views(preset)
+        per_cell = cell_counts(summaries, views)
+        per_cell.to_csv(assets / f"{preset}__cell_counts.csv", index=False)
+        counted.append(f"| {preset} | {tally(per_cell)} |")
+        for table in build_tables(summaries, views, alpha):
+            if table.name != preset and not table.name.startswith(f"{preset}_"):
+                continue
+            annotate([table], scale)
+            lines += ["", table.markdown(note=True)]
+            (assets / f"{table.name}.csv").write_text(table.cells.to_csv())
+            if table.ties is not None and table.ties.best:
+                ties.append(ties_row(table))
     return ["", "## Counts per cell", "", "| preset | per texture: cells |", "|---|---|", *counted,
             "", "## Ties with the best", "", "| table | best | tied with the best | which |", "|---|---|---|---|",
             *ties, *lines]
-
-
-def _survey_config(output: Path) -> None:
-    """The run's config as the report reads its scale from it: dataset=survey's options."""
-    config = {"dataset": yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text()), "experiment": {}}
-    (output / ".hydra").mkdir(parents=True, exist_ok=True)
-    (output / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
 
 
 def cell_counts(summaries: list[dict], views: dict) -> pd.DataFrame:

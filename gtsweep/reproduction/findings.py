@@ -98,14 +98,14 @@ def nms_beats_other_selectors(data: Data):
         for rival in sorted({"nms", "anms", "bucketing"} - {mine}):
             if rival in sel and not (keeps_all(sel[rival]) and keeps_all(sel[mine])):
                 parts.append(pair_claim(data, f"{det} {mine.upper()} vs {rival.upper()}", AMONG, REPEATABILITY_MARGIN,
-                                   sel[mine], sel[rival], "repeatability"))
+                                        sel[mine], sel[rival], "repeatability"))
     return parts
 
 
 def selection_hurts_dense_detectors(data: Data):
     sel = detection_cells(data)
     return [pair_claim(data, f"{det} none vs {survey_selector(det, sel[det]).upper()}", BEATS, REPEATABILITY_MARGIN,
-                  sel[det]["none"], sel[det][survey_selector(det, sel[det])], "repeatability")
+                       sel[det]["none"], sel[det][survey_selector(det, sel[det])], "repeatability")
             for det in ("mser", "fast", "agast", "brisk")
             if "none" in sel.get(det, {}) and survey_selector(det, sel[det]) != "none"]
 
@@ -117,7 +117,7 @@ def best_repeatability(data: Data):
     if len(named) < 3 or rival is None:
         return []
     return [pair_claim(data, f"{x} vs {rival} (best other on half 0)", AMONG, REPEATABILITY_MARGIN, cells[x],
-                  cells[rival], "repeatability", half=1) for x in named]
+                       cells[rival], "repeatability", half=1) for x in named]
 
 
 def sift_ambiguous(data: Data):
@@ -126,7 +126,7 @@ def sift_ambiguous(data: Data):
     if "sift" not in cells or median is None:
         return []
     large = pair_claim(data, f"sift vs median detector {median} (on half 0)", BEATS, AMBIGUITY_MARGIN, cells["sift"],
-                  cells[median], "ambiguity", half=1)
+                       cells[median], "ambiguity", half=1)
     about = against(cells["sift"], "ambiguity", data.views, 1.5, confidence=1 - 2 * data.alpha) \
         if data.views else None
     about = Claim("sift ambiguity - 1.5", about, WITHIN, AMBIGUITY_MARGIN) if about is not None else \
@@ -141,7 +141,7 @@ def low_ambiguity_detectors(data: Data):
     if not named or rival is None:
         return []
     return [pair_claim(data, f"{x} vs lowest other {rival} (on half 0)", AMONG, AMBIGUITY_MARGIN, cells[x],
-                  cells[rival], "ambiguity", sign=-1, half=1) for x in named]
+                       cells[rival], "ambiguity", sign=-1, half=1) for x in named]
 
 
 def censure_best_incremental(data: Data):
@@ -152,7 +152,7 @@ def censure_best_incremental(data: Data):
     if top is None or rival is None:
         return []
     return [pair_claim(data, f"{top} vs {rival} (both best on half 0)", AMONG, SUCCESS_MARGIN, mine[top],
-                  entries[rival], "pose_success", half=1)]
+                       entries[rival], "pose_success", half=1)]
 
 
 def _plain(entries: dict, pool) -> list[pd.DataFrame]:
@@ -187,7 +187,7 @@ def oriented_detectors_win_absolute(data: Data):
     if not oriented or not unoriented:
         return []
     return [pair_claim(data, "best pairing per detector (on half 0), oriented vs unoriented", BEATS, SUCCESS_MARGIN,
-                  pd.concat(oriented), pd.concat(unoriented), "pose_success", half=1)]
+                       pd.concat(oriented), pd.concat(unoriented), "pose_success", half=1)]
 
 
 def sift_best_on_synthetic(data: Data):
@@ -195,8 +195,8 @@ def sift_best_on_synthetic(data: Data):
     rival = best(data, {k: v for k, v in entries.items() if k != "sift-sift"}, "pose_success", half=0)
     if "sift-sift" not in entries or rival is None:
         return []
-    return [pair_claim(data, f"sift-sift vs {rival} (best other on half 0)", AMONG, SUCCESS_MARGIN, entries["sift-sift"],
-                  entries[rival], "pose_success", half=1)]
+    return [pair_claim(data, f"sift-sift vs {rival} (best other on half 0)", AMONG, SUCCESS_MARGIN,
+                       entries["sift-sift"], entries[rival], "pose_success", half=1)]
 
 
 def precision_tracks_success(data: Data):
@@ -223,7 +223,7 @@ def success_saturates(data: Data):
         return []
     top = max(counts)
     return [pair_claim(data, f"{name} {top:.0f} vs 300 features", BELOW, SUCCESS_MARGIN, group, group, "pose_success",
-                  where_a={"reference_count": top}, where_b={"reference_count": 300.0})
+                       where_a={"reference_count": top}, where_b={"reference_count": 300.0})
             for name, group in _by_pairing(cells) if name in SATURATING]
 
 
@@ -234,7 +234,7 @@ def few_references_fail(data: Data):
     if not {100.0, 1000.0} <= set(counts):
         return []
     return [pair_claim(data, f"{name} 1000 vs 100 features", ABOVE, SUCCESS_MARGIN, group, group, "pose_success",
-                  where_a={"reference_count": 1000.0}, where_b={"reference_count": 100.0})
+                       where_a={"reference_count": 1000.0}, where_b={"reference_count": 100.0})
             for name, group in _by_pairing(cells)]
 
 

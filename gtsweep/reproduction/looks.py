@@ -12,13 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gtsweep.reproduction.rounds import PRESETS, ROUNDS
+from gtsweep.reproduction.rounds import PRESETS, ROUNDS, counts
 from gtsweep.reproduction.findings import Finding, check, judge, survey_variant
 from gtsweep.report.pools import Data
 from gtsweep.reproduction.sequential import Sequential, Status
 from gtsweep.report.tables import frame
 from gtsweep.reproduction import amended
-from gtsweep.reproduction.design import ROUND_COUNTS, SPLIT
 from gtsweep.reproduction.state import State, item_number
 
 PENDING = "pending"
@@ -28,7 +27,7 @@ FULL = 100
 
 def round_count(preset: str, k: int) -> int:
     """The count per texture a preset's cells reached in round ``k`` (0-based); Table 2 stays at 1."""
-    return 1 if preset == "table2_selectors" else ROUND_COUNTS[SPLIT[preset]][k]
+    return counts(preset, ROUNDS[k])
 
 
 def preset_run(state: State, preset: str, k: int, limit: int | None) -> dict:
@@ -89,7 +88,8 @@ def amended_looks(state: State, sequential: Sequential, alpha: float, done: set[
         status = next(s for s in sequential.status if s.hypothesis.text == hypothesis.text)
         final.append(_look(state, hypothesis, alpha - status.spent, FULL, done, status))
     restated = [_look(state, h, alpha, FULL, done) for h in amended.RESTATED[1:]]
-    extension = [_look(state, h, alpha, amended.EXTENSION_IMAGES[1], done, numbers=range(*amended.EXTENSION_IMAGES))
+    fresh = range(*amended.EXTENSION_IMAGES)
+    extension = [_look(state, h, alpha, len(fresh), done, numbers=fresh)
                  for h in [*amended.EXTENSION, amended.RESTATED[0]]]
     return {"final": final, "restated": restated, "extension": extension}
 

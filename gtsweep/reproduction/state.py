@@ -46,10 +46,18 @@ class Cell:
     key: str
     record: dict
     rows: list = field(default_factory=list)
+    #: frames already assembled, by (textures, limit): every look, table and count reads the same few
+    _frames: dict = field(default_factory=dict, repr=False)
 
     def frame(self, textures: list[str], limit: int | None = None) -> pd.DataFrame:
         """The cell's rows in the data set's order; ``limit``: only images or pairs numbered below it (a look of
-        an earlier round, taken on the prefix it read)."""
+        an earlier round, taken on the prefix it read). Read it, do not change it: it is shared."""
+        key = (tuple(textures), limit)
+        if key not in self._frames:
+            self._frames[key] = self._assemble(textures, limit)
+        return self._frames[key]
+
+    def _assemble(self, textures: list[str], limit: int | None) -> pd.DataFrame:
         if not self.rows:
             return pd.DataFrame()
         rows = pd.concat(self.rows, ignore_index=True)
@@ -68,7 +76,7 @@ class Cell:
                                     if k in self.record}}
         rows = self.frame(textures, limit)
         if self.record["status"] != "ok" or rows.empty:
-            return {**head, "status": self.record["status"] if rows.empty else "ok", "n_rows": int(len(rows))}
+            return {**head, "n_rows": int(len(rows))}
         return {**head, **summarize(rows.drop(columns=["transform"], errors="ignore"), self.record["experiment"])}
 
 
@@ -95,6 +103,14 @@ class State:
         numbers = [int(r["image"].map(item_number).max()) for c in self.presets.get(preset, {}).values()
                    for r in c.rows if len(r)]
         return max(numbers, default=-1) + 1
+
+    def fingerprints(self) -> dict[str, str | None]:
+        """Every recorded image's or pair's fingerprint, as the first chunk that computed it recorded it."""
+        found: dict[str, str | None] = {}
+        for chunk in self.chunks:
+            for item, fingerprint in chunk.get("items", {}).items():
+                found.setdefault(item, fingerprint)
+        return found
 
     def covered(self, preset: str, key: str) -> set[str]:
         """The images or pairs a cell's rows cover."""
@@ -140,6 +156,20 @@ def write_chunk(folder: Path, label: str, record: dict, rows: pd.DataFrame) -> s
     return name
 
 
+def chunk_records(folder: Path) -> list[dict]:
+    """Every finished chunk's record, in order (no rows read)."""
+    return [{**json.loads(p.read_text()), "name": p.stem} for p in sorted((Path(folder) / "chunks").glob("*.json"))]
+
+
+def cell_records(folder: Path) -> dict[str, dict[str, dict]]:
+    """Per preset, each cell's record as the chunks hold it (its first chunk's; no rows read)."""
+    found: dict[str, dict[str, dict]] = {}
+    for record in chunk_records(folder):
+        for key, meta in record["cells"].items():
+            found.setdefault(record["preset"], {}).setdefault(key, meta)
+    return found
+
+
 def load(folder: Path = STATE_DIR) -> State:
     """The state in ``folder``: its plan and every finished chunk's cells and rows (a chunk whose record is missing,
     one cut while it was written, is ignored)."""
@@ -148,10 +178,10 @@ def load(folder: Path = STATE_DIR) -> State:
     if plan is None:
         raise BadInput(f"no reproduction state in {folder} (missing plan.json)")
     chunks, presets = [], {}
-    for path in sorted((folder / "chunks").glob("*.json")):
-        record = json.loads(path.read_text())
+    for record in chunk_records(folder):
+        path = folder / "chunks" / f"{record['name']}.json"
         rows = pd.read_parquet(path.with_suffix(".parquet"))
-        chunks.append({**record, "name": path.stem, "task_s": task_seconds(record, rows)})
+        chunks.append({**record, "task_s": task_seconds(record, rows)})
         by_cell = dict(tuple(rows.groupby(CELL, sort=False))) if len(rows) else {}
         for key, meta in record["cells"].items():
             cell = presets.setdefault(record["preset"], {}).setdefault(key, Cell(key, meta))
@@ -183,24 +213,16 @@ def restore(state: State, work: Path) -> list[Path]:
     state: what the sweeps of a resumed run and the report read."""
     from gtsweep.orchestration.results import ResultStore
 
-    written = []
+    written, fingerprints = [], state.fingerprints()
     for preset, cells in state.presets.items():
         store = ResultStore(Path(work) / preset)
         for key, cell in sorted(cells.items()):
             rows = cell.frame(state.textures())
-            items = {i: state_fingerprint(state, i) for i in state.covered(preset, key)}
+            items = {i: fingerprints.get(i) for i in state.covered(preset, key)}
             store.write_cell(key, cell.summary(state.textures()), rows if len(rows) else None,
                              {"reuse_key": cell.record.get("reuse_key"), "items": items})
         written.append(store.directory)
     return written
-
-
-def state_fingerprint(state: State, item: str) -> str | None:
-    """An image's or pair's fingerprint as the chunk that computed it recorded it."""
-    for chunk in state.chunks:
-        if item in chunk.get("items", {}):
-            return chunk["items"][item]
-    return None
 
 
 def size_mb(folder: Path = STATE_DIR) -> float:
