@@ -58,6 +58,12 @@ def item_fingerprints(dataset, kind: str) -> dict[str, str | None]:
     return found
 
 
+def reuse_key(grid, cell, seed: int, versions: dict) -> str:
+    """The key a cell's rows are reused under: its configuration without the data set's fingerprint, and the
+    versions of the libraries that compute it."""
+    return config_hash({"cell": grid.cell_config(cell, PER_ITEM, seed), "versions": versions})
+
+
 def subset(dataset, ids: set[str]):
     """``dataset`` with only the images and pairs whose ids are in ``ids`` (in their order)."""
     pairs = None if dataset.kind_pairs is None else \
@@ -85,7 +91,7 @@ class ViewReuse:
         return shard_kind(cell.transform, self.grid.transforms[cell.transform])
 
     def reuse_key(self, cell: Cell) -> str:
-        return config_hash({"cell": self.grid.cell_config(cell, PER_ITEM, self.seed), "versions": library_versions()})
+        return reuse_key(self.grid, cell, self.seed, library_versions())
 
     def coverage(self, cell: Cell) -> dict:
         """What a cell evaluated on this data set covers: its reuse key and its items' fingerprints."""
