@@ -50,7 +50,7 @@ ui: $(STAMP)
 
 # Detector parameters for the table presets (conf/detector/tuned/, shipped in the package): the studies behind the
 # committed files; each study stops when its best has stopped moving (no gain > 0.005 in 20 trials, at most 200:
-# gtsweep/optimize/stopping.py), hours on 2 cores at survey size. A study already in .gtsweep_cache/optuna.db is
+# gtsweep/experiments/optimize/stopping.py), hours on 2 cores at survey size. A study already in .gtsweep_cache/optuna.db is
 # continued. Without experiment.tuned_root=conf, experiment=optimize writes to ./tuned/ (the user's own).
 # Tuning uses the survey-size data set's optimisation views only (their own floor band; no other view is rendered).
 TUNE := $(BIN)/python -m gtsweep experiment=optimize experiment.tuned_root=conf dataset=survey \

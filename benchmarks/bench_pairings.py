@@ -26,7 +26,7 @@ import numpy as np
 from gtsweep.cli.overrides import compose_config
 from gtsweep.core.errors import GtsweepError
 from gtsweep.datasets import load_dataset
-from gtsweep.orchestration.grid import build_grid
+from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.stages.describe import DESCRIPTORS, describe_batch, descriptor_params
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.applicability import applicability, describe_timed

@@ -30,8 +30,8 @@ from gtsweep.cli.overrides import compose_config
 from gtsweep.core.memory import PeakMemory, cpu_split, tree_cpu
 from gtsweep.datasets import load_dataset
 from gtsweep.orchestration.executor import connect, make_executor
-from gtsweep.orchestration.grid import build_grid
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params, prepare_keypoints
 from gtsweep.stages.detect import DETECTORS

@@ -11,7 +11,8 @@ from gtsweep.cli import overrides as cli
 from gtsweep.core import registry
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.registry import availability, left_out_line
-from gtsweep.orchestration.grid import build_grid, matcher_na_line
+from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.orchestration.grid import matcher_na_line
 from gtsweep.orchestration.skeleton import say_not_applicable
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import DETECTORS

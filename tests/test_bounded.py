@@ -23,10 +23,10 @@ def _start(args: list[str], cwd: Path, **kwargs) -> subprocess.Popen:
 
 # ------------------------------------------------------------------------------- item 3: identical studies
 def test_a_second_owner_of_a_study_is_refused_and_a_dead_owner_frees_it(tmp_path):
-    from gtsweep.optimize.optuna_study import study_lock
+    from gtsweep.experiments.optimize.optuna_study import study_lock
 
     storage = f"sqlite:///{tmp_path}/optuna.db"
-    code = ("import sys, time; from gtsweep.optimize.optuna_study import own_study; own_study(sys.argv[1], 'same'); "
+    code = ("import sys, time; from gtsweep.experiments.optimize.optuna_study import own_study; own_study(sys.argv[1], 'same'); "
             "print('owned', flush=True); time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code, storage], env=cli_env(), stdout=subprocess.PIPE,
                               text=True)

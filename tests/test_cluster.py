@@ -129,7 +129,7 @@ import os, sys, json
 from pathlib import Path
 from ray.cluster_utils import Cluster
 from sweep_helpers import compose_config, tiny_overrides
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 
 tmp = Path(sys.argv[1])
 cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})

@@ -15,8 +15,9 @@ from gtsweep.cli import overrides as cli
 from gtsweep.cli import search
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, PACKAGE_DIR, PROJECT_DIR
-from gtsweep.orchestration.grid import REGISTRIES, build_grid
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.orchestration.grid import REGISTRIES
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.stages.detect import DETECTORS
 
 MY_STAR = """\

@@ -8,7 +8,7 @@ from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation.reuse import describe_together
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.stages import describe as describe_stage
 from gtsweep.stages.describe import DESCRIPTORS, describe_batch, describe_timed
 from gtsweep.stages import keypoints as kp
@@ -129,7 +129,7 @@ def test_a_set_that_cannot_be_prepared_is_left_to_its_own_call(gravel_small, key
 def test_a_crashed_group_task_runs_each_detector_by_itself(tmp_path, monkeypatch):
     """A group task that dies (its worker, or one member's detection task) costs no cell: each detector's
     pairing job runs again by itself, as without groups, and the cells equal those of a run without groups."""
-    from gtsweep.orchestration import tasks
+    from gtsweep.experiments.pairs import tasks
 
     grid = ["detector=[akaze,sift]", "descriptor=[sift]", "selector=[nms]", "transform=[incremental]",
             "runner.backend=serial", "mlflow.enabled=false", "report.plots=false"]

@@ -10,9 +10,10 @@ import pandas as pd
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.optimize.tuned_files import storage_label
+from gtsweep.experiments.optimize.tuned_files import storage_label
 from gtsweep.orchestration import dashboard, executor
-from gtsweep.report.combine import combine, mean_summary
+from gtsweep.experiments.kinds import combine_multirun as combine
+from gtsweep.report.combine import mean_summary
 from gtsweep.report.tables import sample_note
 from gtsweep.tracking.tags import cell_names, overrides_name
 

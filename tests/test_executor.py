@@ -13,9 +13,10 @@ import pytest
 
 from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable
 from gtsweep.evaluation.views import make_shard
-from gtsweep.orchestration import tasks
+from gtsweep.experiments.pairs import tasks
+from gtsweep.orchestration.tasks import failure
 from gtsweep.orchestration.executor import SerialExecutor, make_executor
-from gtsweep.orchestration.runner import submit
+from gtsweep.experiments.pairs.runner import submit
 from gtsweep.orchestration.shards import load_shards
 
 
@@ -78,13 +79,13 @@ def test_backend_is_checked():
 
 
 def test_task_statuses_are_honest():
-    assert tasks.failure(NotApplicable("needs oriented keypoints")) == {"na": "needs oriented keypoints"}
-    assert tasks.failure(GtsweepError("detector 'x' is not available: no module")) == \
+    assert failure(NotApplicable("needs oriented keypoints")) == {"na": "needs oriented keypoints"}
+    assert failure(GtsweepError("detector 'x' is not available: no module")) == \
         {"error": "detector 'x' is not available: no module"}
     try:
         {}["missing"]
     except KeyError as e:
-        assert tasks.failure(e)["error"].startswith("KeyError: 'missing' (at ")
+        assert failure(e)["error"].startswith("KeyError: 'missing' (at ")
 
 
 class _Item:

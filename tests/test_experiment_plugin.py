@@ -14,9 +14,11 @@ from gtsweep.core.config import plain
 from gtsweep.evaluation import schema
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment
 from gtsweep.experiments.report_command import main as report_main
-from gtsweep.orchestration.grid import Cell, Grid, resolve_group
-from gtsweep.orchestration.runner import RunStats
-from gtsweep.orchestration.skeleton import PAIRS, CellWork
+from gtsweep.experiments.pairs.grid import Cell, Grid
+from gtsweep.orchestration.grid import resolve_group
+from gtsweep.orchestration.tasks import RunStats
+from gtsweep.experiments.pairs.cells import PAIRS
+from gtsweep.orchestration.skeleton import CellWork
 from gtsweep.stages.detect import detect
 from tests.sweep_helpers import tiny_overrides
 

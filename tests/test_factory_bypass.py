@@ -233,8 +233,8 @@ def test_a_plugin_named_on_the_command_line_gives_its_registered_constructor(tmp
 def test_a_tuned_file_as_optimize_writes_it_passes_the_guard(declared, tmp_path):
     """What ``experiment=optimize`` writes into ./tuned is accepted: a package method's parameters, or those of a
     method declared in a --config-dir (with that file's factory and capabilities repeated unchanged)."""
-    from gtsweep.optimize.targets import Target
-    from gtsweep.optimize.tuned_files import write_tuned
+    from gtsweep.experiments.optimize.targets import Target
+    from gtsweep.experiments.optimize.tuned_files import write_tuned
 
     name = "mine" if declared else "fast"
     node = {"params": {"threshold": 15}, "search_space": {"threshold": {"type": "int", "low": 3, "high": 60}}}

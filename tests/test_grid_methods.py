@@ -7,8 +7,8 @@ from sweep_helpers import compose_config, read_cells, tiny_overrides
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.evaluation import reuse
-from gtsweep.orchestration.grid import build_grid
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.report.tables import build_tables, table_cells
 from gtsweep.tracking.tags import cell_names
 

@@ -1,7 +1,9 @@
 """The house rules, checked from the source: layers import only downward, no import cycle, no module over ~400 lines.
 
 Layers, lowest first (README, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` < ``orchestration`` <
-``tracking`` < ``report`` < ``reproduction`` < ``optimize`` < ``experiments`` < ``cli``; a package's ``__main__`` is an entry point
+``tracking`` < ``report`` < ``reproduction`` < ``wings`` < ``experiments`` < ``cli``, where the wings are the experiment
+kinds' packages (``gtsweep/experiments/<kind>/``: pairs, localization, optimize), each below the registry that
+names them (``gtsweep/experiments/*.py``) and none importing another; a package's ``__main__`` is an entry point
 (nothing imports it) and may use any layer, and so are the top-level commands of :data:`ENTRY_POINTS`. The science (core, stages, evaluation, datasets) never imports
 the orchestration, tracking, report, optimisation or command-line layers. Lazy (function-level) imports count.
 """
@@ -13,8 +15,10 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gtsweep"
-LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "reproduction", "optimize",
+LAYERS = ["core", "stages", "evaluation", "datasets", "orchestration", "tracking", "report", "reproduction", "wings",
           "experiments", "cli"]
+#: The experiment kinds' packages (the wings): every folder of gtsweep/experiments/.
+WINGS = sorted(p.name for p in (PACKAGE / "experiments").iterdir() if (p / "__init__.py").exists())
 SCIENCE = {"core", "stages", "evaluation", "datasets"}
 MAX_LINES = 400
 #: Top-level modules run as commands (``python -m gtsweep``, ``python -m gtsweep.install learned``).
@@ -45,7 +49,14 @@ def _imports(path: Path, modules) -> set[str]:
 
 def _layer(module: str) -> str | None:
     parts = module.split(".")
+    if len(parts) > 2 and parts[1] == "experiments" and parts[2] in WINGS:
+        return "wings"
     return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def _wing(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[2] if _layer(module) == "wings" else None
 
 
 def test_every_module_sits_in_a_layer():
@@ -68,6 +79,14 @@ def test_layers_import_only_downward():
             if other is not None and LAYERS.index(other) > LAYERS.index(own):
                 upward.append(f"{module} -> {imported}")
     assert upward == [], "imports against the layers:\n" + "\n".join(sorted(upward))
+
+
+def test_the_wings_are_the_three_kinds_and_none_imports_another():
+    assert WINGS == ["localization", "optimize", "pairs"]
+    modules = _modules()
+    crossing = [f"{m} -> {i}" for m, p in modules.items() if _wing(m) is not None
+                for i in _imports(p, modules) if _wing(i) not in (None, _wing(m))]
+    assert crossing == [], "a wing imports another:\n" + "\n".join(sorted(crossing))
 
 
 def test_science_never_imports_orchestration_tracking_or_cli():

@@ -19,7 +19,7 @@ from gtsweep.datasets.mapping import check, covered_area, load_localization, map
 from gtsweep.datasets.pairing import texture_rng
 from gtsweep.datasets.synthetic import render_view
 from gtsweep.evaluation.evaluate import detect_and_select
-from gtsweep.orchestration.localization import build_localization_grid
+from gtsweep.experiments.localization.cells import build_localization_grid
 from gtsweep.stages.describe import describe
 from gtsweep.stages.localize import (Acceptance, FeatureMap, build_map, judge, localize, orientation, pose_columns,
                                      vote)
@@ -260,7 +260,7 @@ def test_localization_on_a_real_data_set_maps_every_floor_found(tmp_path):
 
 
 def test_run_writes_per_query_rows_and_reuses_the_cached_map(tmp_path):
-    from gtsweep.orchestration.localization import run_localization
+    from gtsweep.experiments.localization.cells import run_localization
 
     cfg = _cfg(detector={"akaze": {"params": {}}}, descriptor={"akaze": {"params": {}}},
                estimator={"ransac": {"params": {}}, "cv_ransac": {"params": {}}},

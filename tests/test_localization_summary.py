@@ -55,7 +55,7 @@ def test_other_experiments_still_aggregate_every_row():
 @pytest.mark.slow
 def test_report_of_a_localization_run_rebuilt_from_mlflow(tmp_path, monkeypatch, capsys):
     """Child runs logged as a localization run logs them; ``--mlflow`` writes the localization tables."""
-    from gtsweep.orchestration.localization import LocCell, LocGrid
+    from gtsweep.experiments.localization.cells import LocCell, LocGrid
     from gtsweep.experiments.report_command import main
     from gtsweep.tracking.sweep import SweepTracker
 

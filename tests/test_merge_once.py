@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 from gtsweep.cli import overrides as cli
 from gtsweep.cli import schemas
 from gtsweep.core.registry import Method
-from gtsweep.orchestration.grid import build_grid
+from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.stages.detect import DETECTORS, detect_timed
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from gtsweep.cli import main as gtsweep_main
-from gtsweep.optimize.study_settings import read_settings
+from gtsweep.experiments.optimize.study_settings import read_settings
 from tests.sweep_helpers import compose_config
 
 

@@ -13,7 +13,7 @@ from gtsweep.cli import runs
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
 from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash
-from gtsweep.orchestration.grid import build_grid
+from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.orchestration.results import ResultStore, summarize
 
 PARAMS = {"params": {}}

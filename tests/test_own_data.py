@@ -13,7 +13,7 @@ from dataset_fixtures import OWN_VIEW, own_csv, own_csv_rows
 from gtsweep.core.errors import BadInput
 from gtsweep.datasets import load_dataset
 from gtsweep.datasets.posecheck import check_poses
-from gtsweep.orchestration.skeleton import PAIRS
+from gtsweep.experiments.pairs.cells import PAIRS
 
 TOO_FEW = ("24 images in 2 texture(s), at most 12 in one session; an absolute pair is two images whose footprints "
            "overlap >= absolute_min_overlap (0.1), from different sessions or >= absolute_min_gap (50) images apart "

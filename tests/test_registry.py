@@ -12,7 +12,8 @@ from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable, UnknownMe
 from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
 from gtsweep.datasets import DATASETS, load_dataset
 from gtsweep.evaluation.transforms import TRANSFORMS, synthesize
-from gtsweep.orchestration.grid import build_grid, resolve_group
+from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.orchestration.grid import resolve_group
 from gtsweep.stages.describe import DESCRIPTORS, DescriptorSpec, describe
 from gtsweep.stages.detect import DETECTORS, DetectorSpec, detect, probe_image
 from gtsweep.stages.select import SELECTORS, select

@@ -24,7 +24,7 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration import cache
 from gtsweep.orchestration.results import ResultStore, summary_table
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 
 SMALL = ["detector=[orb]", "descriptor=[orb]", "selector=[nms]", "transform=[incremental]", "runner.backend=serial",
          "mlflow.enabled=false", "report.plots=false"]

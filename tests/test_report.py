@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from sweep_helpers import compose_config, tiny_overrides
 
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.experiments.report_command import main
 from gtsweep.report.output import write_report
 from gtsweep.report.tables import build_tables, fmt
@@ -203,7 +203,7 @@ def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
 
     from report_fakes import fake_cell
 
-    from gtsweep.report.combine import combine
+    from gtsweep.experiments.kinds import combine_multirun as combine
 
     for job, sift in (("0", [1] * 15 + [0] * 5), ("1", [1] * 10 + [0] * 10)):
         directory = tmp_path / job

@@ -6,7 +6,7 @@ import pandas as pd
 import pytest
 from report_fakes import fake_cell
 
-from gtsweep.report.combine import combine
+from gtsweep.experiments.kinds import combine_multirun as combine
 
 
 def _job(root, name, setting, censure_sift):
@@ -114,7 +114,7 @@ def test_failed_cells_end_the_multirun_in_1_even_when_combining_breaks(tmp_path,
 
     from gtsweep.cli.multirun import MultirunReport
     from gtsweep.orchestration.results import ResultStore
-    from gtsweep.report import combine as combine_module
+    from gtsweep.experiments import kinds
 
     _job(tmp_path, "0", "own", [1] * 18 + [0] * 2)
     error = {"key": "msd__nms__sift__incremental", "status": "error", "experiment": "pose", "reason": "octaves",
@@ -124,7 +124,7 @@ def test_failed_cells_end_the_multirun_in_1_even_when_combining_breaks(tmp_path,
     def broken(*args, **kwargs):
         raise KeyError("pose_success")
 
-    monkeypatch.setattr(combine_module, "combine", broken)
+    monkeypatch.setattr(kinds, "combine_multirun", broken)
     config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}, "mlflow": {"enabled": False},
                                "report": {"plots": False, "by": None, "alpha": 0.05}})
     with pytest.raises(SystemExit) as stop:

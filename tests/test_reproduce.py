@@ -148,7 +148,7 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
 
     from sweep_helpers import compose_config, tiny_overrides
 
-    from gtsweep.orchestration.skeleton import run_sweep
+    from gtsweep.experiments.kinds import run_sweep
     from gtsweep.reproduction import command as reproduce
 
     work, docs = tmp_path / "work", tmp_path / "docs"

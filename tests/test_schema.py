@@ -15,7 +15,7 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summarize, summary_table
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.report.output import write_report
 from gtsweep.tracking.readback import summaries_from_mlflow
 from gtsweep.tracking.sweep import SweepTracker
@@ -114,7 +114,7 @@ def test_summary_table_orders_columns_by_schema():
 
 
 def test_terminal_summary_shows_the_schema_headline():
-    from gtsweep.experiments.summary import headline_tables
+    from gtsweep.experiments.pairs.summary import headline_tables
 
     methods = {"detector": "sift", "selector": "nms", "descriptor": None, "transform": "rotation"}
     outcome = SimpleNamespace(grid=SimpleNamespace(experiment={"name": "detection"}), summaries=[

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.orchestration.grid import build_grid
+from gtsweep.experiments.pairs.grid import build_grid
 from tests.sweep_helpers import compose_config, run_cli, tiny_overrides
 
 PAIR_PRESETS = ("table4_incremental", "table5_absolute", "table6_pairings", "table7_reference_features")

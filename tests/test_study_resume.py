@@ -7,9 +7,9 @@ import optuna
 import pytest
 from optuna.distributions import IntDistribution
 
-from gtsweep.optimize import optuna_study
-from gtsweep.optimize.optuna_study import open_study, optimise
-from gtsweep.optimize.targets import Target
+from gtsweep.experiments.optimize import optuna_study
+from gtsweep.experiments.optimize.optuna_study import open_study, optimise
+from gtsweep.experiments.optimize.targets import Target
 
 SETTINGS = {"n_trials": 8, "parallel_trials": 2, "sampler_seed": 0, "n_startup_trials": 3, "enqueue_defaults": True}
 TARGET = Target("detector", "fast", "fast", None, {}, {"threshold": 20}, {},

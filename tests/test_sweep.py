@@ -20,7 +20,7 @@ from sweep_helpers import (
 )
 
 from gtsweep.orchestration import cache
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 
 SERIAL = "runner.backend=serial"
 
@@ -111,7 +111,7 @@ import sys
 import ray
 from ray.cluster_utils import Cluster
 from sweep_helpers import compose_config, tiny_overrides
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 from pathlib import Path
 
 tmp, grid = Path(sys.argv[1]), sys.argv[2:]

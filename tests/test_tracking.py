@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 from sweep_helpers import compose_config, mlflow_server, tiny_overrides
 
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.tracking.store import flatten
 from gtsweep.tracking.sweep import SweepTracker, step_scale
 

@@ -9,7 +9,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 from sweep_helpers import compose_config, tiny_overrides
 
-from gtsweep.orchestration.grid import Cell
+from gtsweep.experiments.pairs.grid import Cell
 from gtsweep.tracking.figures import strength_figure
 from gtsweep.tracking.metricnames import mlflow_name, summary_name
 from gtsweep.tracking.params import (
@@ -142,7 +142,7 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
     from omegaconf import OmegaConf
 
     from gtsweep.orchestration.cache import library_versions
-    from gtsweep.orchestration.skeleton import run_sweep
+    from gtsweep.experiments.kinds import run_sweep
     from gtsweep.tracking.readback import summaries_from_mlflow, views_from_mlflow
     from gtsweep.tracking.sweep import SweepTracker
 

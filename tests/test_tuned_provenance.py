@@ -2,7 +2,7 @@
 which files were not tuned on dataset=survey's optimisation views, and a check fails until they are."""
 import pytest
 
-from gtsweep.optimize.stopping import settled
+from gtsweep.experiments.optimize.stopping import settled
 from gtsweep.reproduction.tuned import tuned_fingerprints, tuned_line, tuning_fingerprint
 
 

@@ -2,8 +2,8 @@
 reproduction's parameter table is read back from it (no study database needed)."""
 from types import SimpleNamespace
 
-from gtsweep.optimize.targets import Target
-from gtsweep.optimize.tuned_files import defaults_trial, stop_reason, tuned_header, write_tuned
+from gtsweep.experiments.optimize.targets import Target
+from gtsweep.experiments.optimize.tuned_files import defaults_trial, stop_reason, tuned_header, write_tuned
 from gtsweep.report.tuning import read_header, tuning_table
 
 SETTINGS = {"objective": "repeatability", "min_keypoints": 100, "storage": "sqlite:///.gtsweep_cache/optuna.db",

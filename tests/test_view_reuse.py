@@ -12,7 +12,7 @@ from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
 
 import gtsweep.evaluation.evaluate as evaluate
 from gtsweep.datasets import load_dataset
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 
 BASE = ["runner.backend=serial", "mlflow.enabled=false", "detector=[orb]", "descriptor=[brief]", "selector=[nms]",
         "transform=[rotation,incremental]", "transform.rotation.strengths=[0,45]", "experiment=pose",

@@ -25,7 +25,7 @@ from gtsweep.core.interrupts import Interrupted, interruptible
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
-from gtsweep.orchestration.skeleton import run_sweep
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import scale_from_config
 

@@ -17,7 +17,8 @@ from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, causes, n
 from gtsweep.core.factories import check_composed
 from gtsweep.core.registry import availability, left_out_line, require_available
 from gtsweep.core.searchpath import Configs
-from gtsweep.orchestration.grid import MOVED, REGISTRIES
+from gtsweep.experiments.pairs.grid import MOVED
+from gtsweep.orchestration.grid import REGISTRIES
 from gtsweep.orchestration.settings import check_settings
 from gtsweep.stages import device as devices
 

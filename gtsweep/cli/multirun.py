@@ -46,14 +46,14 @@ class MultirunReport(Callback):
 
     def on_multirun_end(self, config, **kwargs) -> None:
         from gtsweep.core.errors import GtsweepError
-        from gtsweep.report.combine import combine
+        from gtsweep.experiments.kinds import combine_multirun
 
         sweep_dir = Path(config.hydra.sweep.dir)
         failed = failed_cells(sweep_dir)
         reason = f"{len(failed)} cell(s) failed: {', '.join(failed)}" if failed else ""
         try:  # Hydra turns a callback's exception into a warning: failed cells must still end the multirun in 1
             try:
-                files = combine(sweep_dir, plots=config.report.plots, by=config.report.by,
+                files = combine_multirun(sweep_dir, plots=config.report.plots, by=config.report.by,
                                 alpha=config.report.alpha)
             except GtsweepError as e:
                 print(f"gtsweep: multirun: nothing combined ({e})")

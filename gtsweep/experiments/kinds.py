@@ -14,14 +14,17 @@ from typing import Callable, Mapping
 
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation import schema
-from gtsweep.experiments.summary import format_outcome
-from gtsweep.orchestration.localization import LOCALIZATION
-from gtsweep.orchestration.skeleton import PAIRS, CellWork, SweepOutcome
-from gtsweep.report.localization import format_localization, write_localization_report
+from gtsweep.experiments.localization.cells import LOCALIZATION
+from gtsweep.experiments.localization.report import format_localization, write_localization_report
+from gtsweep.experiments.pairs.cells import PAIRS
+from gtsweep.experiments.pairs.summary import format_outcome
+from gtsweep.orchestration.skeleton import CellWork, SweepOutcome
+from gtsweep.orchestration.skeleton import run_sweep as run_cells
+from gtsweep.report.combine import combine
 from gtsweep.report.output import write_report
 from gtsweep.report.samples import Views
 from gtsweep.report.scale import Scale
-from gtsweep.report.tables import Table
+from gtsweep.report.tables import ALPHA, Table
 
 
 @dataclass(frozen=True)
@@ -74,7 +77,7 @@ def localization_report(summaries: list[dict], out_dir: Path, options: ReportOpt
 
 
 def optimize_job(cfg: Mapping, output_dir: Path) -> None:
-    from gtsweep.optimize.driver import main
+    from gtsweep.experiments.optimize.driver import main
 
     main(cfg, output_dir)
 
@@ -98,3 +101,34 @@ def recorded_kind(summaries: list[dict]) -> Experiment:
 
         raise BadInput(f"the cells are of experiments with different reports: {', '.join(sorted(kinds))}")
     return EXPERIMENTS.get(min(kinds) if kinds else "pose")
+
+
+def run_sweep(cfg: Mapping, output_dir: str | Path, **options) -> SweepOutcome:
+    """The sweep of ``cfg`` on the sweep skeleton, with the cells of its experiment kind (``work`` overrides them)
+    (:func:`gtsweep.orchestration.skeleton.run_sweep` for the options)."""
+    from gtsweep.core.config import plain
+    from gtsweep.core.errors import BadInput
+
+    work = options.pop("work", None)
+    if work is None:
+        name = (plain(cfg.get("experiment")) or {}).get("name")
+        kind = EXPERIMENTS.get(name, None)
+        if kind is None or kind.cells is None:
+            sweeps = [e.name for e in EXPERIMENTS.values() if e.cells is not None]
+            raise BadInput(f"experiment must be one of {', '.join(sweeps)}, got {name!r}")
+        work = kind.cells
+    return run_cells(cfg, output_dir, work, **options)
+
+
+def combine_multirun(sweep_dir: str | Path, plots: bool = True, by: str | None = None, alpha: float = ALPHA):
+    """``<sweep dir>/combined/`` of a multirun (:func:`gtsweep.report.combine.combine`), its report the one of the
+    experiment kind its cells recorded; returns the files written."""
+    def report_of(summaries: list[dict]):
+        report = recorded_kind(summaries).report
+
+        def write(means: list[dict], out_dir: Path, views: dict, scale) -> list[Path]:
+            options = ReportOptions(plots=plots, views=lambda: views, by=by, alpha=alpha, scale=scale)
+            return report(means, out_dir, options)[1]
+        return write
+
+    return combine(sweep_dir, report_of, alpha)

@@ -1,18 +1,17 @@
-"""The grid of a sweep: which cells (detector x selector x descriptor x transform, and for matching and pose the
-matcher, and for pose the estimator) to evaluate, from a config.
+"""Grids of any kind: the cell and grid protocol the engine reads (:class:`MethodCell`, :class:`MethodGrid`: a
+cell's key, methods, configuration and hash, written once), and the grid groups resolved from a config.
 
 A composed config brings each method's full parameters (Hydra merged its YAML and the command line onto its
 defaults: ``gtsweep.cli.schemas``); :meth:`~gtsweep.core.registry.Method.params` checks them strictly (and fills in
 the defaults for a config that has only some: a script's, a user's file without its schema), and the method is
-built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares a new method (:meth:`~gtsweep.core.registry.Registry.declare`); the
-grid carries these declarations (:attr:`Grid.declared`) to every process that runs its tasks.
-A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell
-only when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work,
-and so is a matcher that cannot match a descriptor's kind (a FLANN index forced to KD-trees on binary descriptors).
+built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares a
+new method (:meth:`~gtsweep.core.registry.Registry.declare`); the grid carries these declarations
+(:attr:`MethodGrid.declared`) to every process that runs its tasks. A cell's identity is its methods and their full
+configuration, hashed; a resumed sweep keeps a finished cell only when that hash is unchanged. Each kind builds
+its own grid from these parts (``gtsweep.experiments.<kind>``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Mapping
 
 from gtsweep.core.config import config_hash, plain
@@ -20,7 +19,6 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.plugins import enable as enable_plugins
 from gtsweep.core.registry import Registry
 from gtsweep.evaluation.transforms import TRANSFORMS
-from gtsweep.stages import device as devices
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
@@ -29,8 +27,6 @@ from gtsweep.stages.match import applicability as matcher_applicability
 from gtsweep.stages.pose import ESTIMATORS
 from gtsweep.stages.select import SELECTORS
 
-#: The experiments on pairs of images (the survey's): each a grid of this module.
-PAIR_EXPERIMENTS = ("detection", "matching", "pose")
 TRANSFORM_KINDS = ("synthetic", "pairs")
 PAIR_TRANSFORMS = ("incremental", "absolute")
 #: The registry behind each grid group (the real-pair transforms have no parameters, so no entry).
@@ -38,100 +34,71 @@ REGISTRIES: dict[str, Registry] = {"detector": DETECTORS, "selector": SELECTORS,
                                    "transform": TRANSFORMS, "matcher": MATCHERS, "estimator": ESTIMATORS}
 #: The survey's matcher and estimator: a config without these groups (a script's, an older one) uses them.
 SURVEY_METHODS = {"matcher": "bf_ratio", "estimator": "ransac"}
-#: Settings that were the experiment's and are now a matcher's or an estimator's parameters (matching and pose).
-MOVED = {"ratio": "matcher.bf_ratio.params.ratio", "mutual": "matcher.bf_ratio.params.mutual",
-         "pose.model": "estimator.ransac.params.model", "pose.iterations": "estimator.ransac.params.iterations",
-         "pose.threshold": "estimator.ransac.params.threshold"}
 
 
-@dataclass(frozen=True)
-class Cell:
-    """One grid cell. ``descriptor`` and ``matcher`` are None for the detection experiment, ``estimator`` for
-    detection and matching."""
+#: The grid groups in the order a cell names its methods.
+METHOD_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+#: The grid attribute that holds each group's ``{name: node}``.
+GROUP_ATTRIBUTES = {"detector": "detectors", "selector": "selectors", "descriptor": "descriptors",
+                    "transform": "transforms", "matcher": "matchers", "estimator": "estimators"}
 
-    detector: str
-    selector: str
-    descriptor: str | None
-    transform: str
-    na_reason: str | None = None
-    matcher: str | None = None
-    estimator: str | None = None
 
-    @property
-    def key(self) -> str:
-        """``detector__selector__descriptor__transform``, then the matcher and the estimator where they are not the
-        survey's (``bf_ratio``, ``ransac``): a survey cell keeps its name (its files, its MLflow run)."""
-        parts = [self.detector, self.selector, self.descriptor or "-", self.transform]
-        others = [m for m in (self.matcher, self.estimator) if m is not None and m not in SURVEY_METHODS.values()]
-        return "__".join(parts + others)
+class MethodCell:
+    """What a cell of any kind is to the engine: its methods (one name per grid group it has), its ``key`` (the
+    name of its files and MLflow run) and ``na_reason`` (None: it can run). A kind's cell is a frozen dataclass
+    with a field per group it has and declares:
+
+    - ``NAMED``: the groups ``methods`` always names (the others only when set);
+    - ``KEY``: the groups its key joins, in order (a missing method reads ``-``);
+    - ``SURVEY_DEFAULTS``: groups the key names only where the method is not the survey's (:data:`SURVEY_METHODS`:
+      a survey cell keeps its name).
+    """
+
+    NAMED: tuple[str, ...] = ()
+    KEY: tuple[str, ...] = ()
+    SURVEY_DEFAULTS: tuple[str, ...] = ()
+    na_reason: str | None
 
     @property
     def methods(self) -> dict:
-        """The cell's method names (matcher and estimator only where the experiment has them)."""
-        methods = {"detector": self.detector, "selector": self.selector, "descriptor": self.descriptor,
-                   "transform": self.transform}
-        return {**methods, **{k: v for k, v in (("matcher", self.matcher), ("estimator", self.estimator)) if v}}
+        return {g: getattr(self, g) for g in METHOD_GROUPS
+                if hasattr(self, g) and (g in self.NAMED or getattr(self, g) is not None)}
+
+    @property
+    def key(self) -> str:
+        parts = [getattr(self, g) for g in self.KEY
+                 if g not in self.SURVEY_DEFAULTS or getattr(self, g) not in (None, SURVEY_METHODS.get(g))]
+        return "__".join(part or "-" for part in parts)
 
 
-@dataclass
-class Grid:
-    """Cells plus the configuration of every method they use."""
+class MethodGrid:
+    """What a grid of any kind is to the engine: ``experiment`` (its settings), ``cells``, and per grid group the
+    ``{name: node}`` of its options (attributes named by :data:`GROUP_ATTRIBUTES`; a group the kind lacks is
+    absent or empty). A cell's identity is its methods and their full configuration, hashed (:meth:`cell_hash`)."""
 
+    #: The groups whose methods may be declared in YAML (``factory``) and so are declared where tasks run.
+    DECLARED_GROUPS: tuple[str, ...] = ("detector", "selector", "descriptor", "transform")
     experiment: dict
-    detectors: dict[str, dict]
-    selectors: dict[str, dict]
-    descriptors: dict[str, dict]
-    transforms: dict[str, dict]
-    cells: list[Cell] = field(default_factory=list)
-    matchers: dict[str, dict] = field(default_factory=dict)
-    estimators: dict[str, dict] = field(default_factory=dict)
-    #: Where the torch methods compute (``runner.device`` resolved: cpu or cuda; :mod:`gtsweep.stages.device`).
-    device: str = "cpu"
+
+    def options(self, group: str) -> dict[str, dict]:
+        return getattr(self, GROUP_ATTRIBUTES[group], None) or {}
 
     @property
     def declared(self) -> dict[str, dict[str, dict]]:
         """The methods declared in YAML, ``{group: {name: node}}``: :func:`declare` them where tasks run."""
-        groups = {"detector": self.detectors, "selector": self.selectors, "descriptor": self.descriptors,
-                  "transform": self.transforms}
-        return declared_methods(groups)
+        return declared_methods({group: self.options(group) for group in self.DECLARED_GROUPS})
 
-    def matcher_params(self, name: str) -> dict:
-        return dict(self.matchers[name].get("params") or {})
-
-    def estimator_params(self, name: str) -> dict:
-        return dict(self.estimators[name].get("params") or {})
-
-    def cell_config(self, cell: Cell, dataset_fingerprint: str, seed: int) -> dict:
-        """Everything that determines a cell's numbers (a matcher's and an estimator's config where it has them)."""
-        config = {
-            "methods": cell.methods,
-            "detector": self.detectors[cell.detector],
-            "selector": self.selectors[cell.selector],
-            "descriptor": self.descriptors.get(cell.descriptor) if cell.descriptor else None,
-            "transform": self.transforms[cell.transform],
-            "experiment": self.experiment,
-            "dataset": dataset_fingerprint,
-            "seed": seed,
-        }
-        if cell.matcher is not None:
-            config["matcher"] = self.matchers[cell.matcher]
-        if cell.estimator is not None:
-            config["estimator"] = self.estimators[cell.estimator]
-        config.update(self.device_entry(cell))
+    def cell_config(self, cell: MethodCell, dataset_fingerprint: str, seed: int) -> dict:
+        """Everything that determines a cell's numbers: its methods' configuration (a method the kind names but
+        has no node for, e.g. a map's transform: ``{}``; a missing one: None), its experiment's settings, the
+        data set's fingerprint and the seed."""
+        config = {"methods": cell.methods, "experiment": self.experiment, "dataset": dataset_fingerprint,
+                  "seed": seed}
+        for group, name in cell.methods.items():
+            config[group] = self.options(group).get(name, {}) if name is not None else None
         return config
 
-    def device_entry(self, cell: Cell) -> dict:
-        """``{"device": ...}`` when one of the cell's methods computes on a device other than the CPU, else
-        nothing (a CPU run's cell hashes are the ones it had before ``runner.device`` existed)."""
-        groups = (("detector", cell.detector), ("descriptor", cell.descriptor), ("matcher", cell.matcher))
-        return {"device": self.device} if any(devices.key_entry(g, n, self.device) for g, n in groups) else {}
-
-    def torch_methods(self) -> bool:
-        """Whether any method of the grid runs on torch (only then does ``runner.device=auto`` look for CUDA)."""
-        groups = {"detector": self.detectors, "descriptor": self.descriptors, "matcher": self.matchers}
-        return any(devices.moves(group, name) for group, names in groups.items() for name in names)
-
-    def cell_hash(self, cell: Cell, dataset_fingerprint: str, seed: int) -> str:
+    def cell_hash(self, cell: MethodCell, dataset_fingerprint: str, seed: int) -> str:
         return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
 
 
@@ -217,43 +184,6 @@ def _check_transform(name: str, settings: dict) -> None:
         spec.check_strength(f"transform.{name}.strengths: {strength!r}; each strength", strength)
 
 
-def build_grid(cfg: Mapping) -> Grid:
-    """The cells of the sweep described by ``cfg`` (the composed Hydra config, its run settings checked where it
-    was composed)."""
-    experiment = plain(cfg.get("experiment")) or {}
-    if experiment.get("name") not in PAIR_EXPERIMENTS:
-        raise BadInput(f"experiment must be one of {', '.join(PAIR_EXPERIMENTS)}, got {experiment.get('name')!r}")
-    name = experiment["name"]
-    if name != "detection":
-        _check_moved(experiment)
-    grid = Grid(
-        experiment=experiment,
-        detectors=resolve_group(cfg, "detector"),
-        selectors=resolve_group(cfg, "selector"),
-        descriptors=resolve_group(cfg, "descriptor") if name != "detection" else {},
-        transforms=resolve_group(cfg, "transform"),
-        matchers=resolve_group(with_survey_method(cfg, "matcher"), "matcher") if name != "detection" else {},
-        estimators=resolve_group(with_survey_method(cfg, "estimator"), "estimator") if name == "pose" else {},
-    )
-    grid.device = devices.resolve((plain(cfg.get("runner")) or {}).get("device"), grid.torch_methods())
-    pairings = pairings_of(cfg, grid)
-    selected = selectors_of(cfg, grid)
-    combinations = [(m, e) for m in grid.matchers for e in (grid.estimators or [None])]
-    for transform in grid.transforms:
-        for selector in grid.selectors:
-            if name == "detection":
-                grid.cells += [Cell(d, selector, None, transform) for d in grid.detectors if selector in selected[d]]
-                continue
-            for detector, descriptor in pairings:
-                if selector not in selected[detector]:
-                    continue
-                reason = applicability(detector, descriptor)
-                grid.cells += [Cell(detector, selector, descriptor, transform,
-                                    reason or _matcher_na(grid, matcher, descriptor), matcher, estimator)
-                               for matcher, estimator in combinations]
-    return grid
-
-
 def selectors_of(cfg: Mapping, grid) -> dict[str, list[str]]:
     """The selectors each detector of ``grid`` runs with: the grid's selectors, or the one ``selector_for`` names
     for it (``selector_for: {mser: anms}``: MSER with ANMS, every other detector with the selector group; the
@@ -283,22 +213,6 @@ def with_survey_method(cfg: Mapping, group: str) -> Mapping:
     return {**cfg, group: {SURVEY_METHODS[group]: {"params": {}}}}
 
 
-def _check_moved(experiment: dict) -> None:
-    """A setting that moved to a matcher's or an estimator's parameters is one line naming its new place."""
-    for old, new in MOVED.items():
-        head, _, tail = old.partition(".")
-        node = experiment.get(head)
-        if (head in experiment and not tail) or (tail and isinstance(node, dict) and tail in node):
-            raise BadInput(f"experiment.{old} moved to the {new.split('.')[0]} group: set {new} instead "
-                           f"(conf/{new.split('.')[0]}/{new.split('.')[1]}.yaml)")
-
-
-def _matcher_na(grid: Grid, matcher: str, descriptor: str) -> str | None:
-    """Why ``matcher`` (with the grid's params) cannot match ``descriptor``'s vectors, else None."""
-    built = MATCHERS.get(matcher).build(grid.matcher_params(matcher))
-    return matcher_applicability(built, DESCRIPTORS.get(descriptor).norm, descriptor)
-
-
 def matcher_na_line(cells) -> str | None:
     """One line for the ``cells`` that are NA because their matcher cannot match their descriptor (known from the
     grid alone: written NA, nothing computed for them), by matcher; None when there is none."""
@@ -314,7 +228,7 @@ def matcher_na_line(cells) -> str | None:
                      for matcher, found in by_matcher.items()) or None
 
 
-def pairings_of(cfg: Mapping, grid: Grid) -> list[tuple[str, str]]:
+def pairings_of(cfg: Mapping, grid: MethodGrid) -> list[tuple[str, str]]:
     wanted = plain(cfg.get("pairings"))
     if wanted is None:
         return [(d, s) for d in grid.detectors for s in grid.descriptors]

@@ -1,9 +1,9 @@
 """The one sweep skeleton every kind of sweep runs on: build the grid, check the services, load the data, keep the
 cells an earlier run finished (resume), evaluate the others, write the results and the run record.
 
-A kind of sweep gives its grid, its data and its evaluation as a :class:`CellWork` (:data:`PAIRS` for the pair
-experiments, :data:`gtsweep.orchestration.localization.LOCALIZATION`). The skeleton alone writes result files
-(and, through ``hooks``, to MLflow); workers return plain rows.
+A kind of sweep gives its grid, its data and its evaluation as a :class:`CellWork` (its experiment's
+:attr:`~gtsweep.experiments.kinds.Experiment.cells`; the kinds live in ``gtsweep/experiments/<kind>/``). The
+skeleton alone writes result files (and, through ``hooks``, to MLflow); workers return plain rows.
 """
 from __future__ import annotations
 
@@ -20,28 +20,26 @@ import pandas as pd
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput
-from gtsweep.datasets import load_dataset
 from gtsweep.datasets.pixels import check_dataset
 from gtsweep.orchestration.cache import cache_state
 from gtsweep.orchestration.cluster import check_address, cluster_record
 from gtsweep.orchestration.executor import backend
-from gtsweep.orchestration.grid import Cell, Grid, build_grid, matcher_na_line
+from gtsweep.orchestration.grid import MethodCell, MethodGrid, matcher_na_line
 from gtsweep.orchestration.progress import Progress
 from gtsweep.orchestration.results import ResultStore, summarize
-from gtsweep.orchestration.runner import RunStats, plan, run
-from gtsweep.orchestration.shards import load_shards
+from gtsweep.orchestration.tasks import RunStats
 from gtsweep.orchestration.view_reuse import ViewReuse
 
 #: Called as ``hook(cell, summary, rows)`` for every cell as it finishes, and for cells kept from an earlier run
 #: (rows None for those and for NA cells).
-CellHook = Callable[[Cell, dict, "pd.DataFrame | None"], None]
+CellHook = Callable[[MethodCell, dict, "pd.DataFrame | None"], None]
 log = logging.getLogger(__name__)
 
 
 @dataclass
 class SweepOutcome:
     output_dir: Path
-    grid: Grid
+    grid: MethodGrid
     summaries: list[dict]
     stats: RunStats
     resumed: int  # cells found complete from an earlier run
@@ -53,7 +51,7 @@ class SweepOutcome:
     cache: str = ""  # the keypoint cache: "on: <dir>" or "off: <why>"
 
 
-def cell_summary(cell: Cell, cell_hash: str, outcome: Mapping, experiment: str) -> dict:
+def cell_summary(cell: MethodCell, cell_hash: str, outcome: Mapping, experiment: str) -> dict:
     """The summary written for a cell: methods, experiment, status (ok, na, error), reason and aggregate metrics,
     and when its tasks ran (``started``, ``ended``: seconds since the epoch)."""
     summary = {"key": cell.key, "methods": cell.methods, "hash": cell_hash, "experiment": experiment,
@@ -83,24 +81,16 @@ class CellWork:
     reuse: Callable[..., ViewReuse] | None = None
 
 
-def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] = (),
-              on_start: Callable[[Grid, str], None] | None = None, progress: Progress | None = None,
-              on_checked: Callable[[], None] | None = None, work: CellWork | None = None) -> SweepOutcome:
+def run_sweep(cfg: Mapping, output_dir: str | Path, work: CellWork, hooks: tuple[CellHook, ...] = (),
+              on_start: Callable[[MethodGrid, str], None] | None = None, progress: Progress | None = None,
+              on_checked: Callable[[], None] | None = None) -> SweepOutcome:
     """Evaluate the grid of ``cfg`` into ``output_dir``; cells already complete (same config) are kept, failed
-    ones recomputed. ``work``: the kind of sweep (None: the pair experiments, :data:`PAIRS`); ``progress`` shows
-    the phases and counts the cells (none: the job's log only); ``on_checked`` runs once the settings and the Ray
-    address are checked, before any work."""
+    ones recomputed. ``work``: the kind of sweep (its experiment's :attr:`~gtsweep.experiments.kinds.Experiment.
+    cells`); ``progress`` shows the phases and counts the cells (none: the job's log only); ``on_checked`` runs once
+    the settings and the Ray address are checked, before any work."""
     start = time.perf_counter()
-    work = work or PAIRS
     progress = progress or Progress(enabled=False)
-    grid = work.build_grid(cfg)
-    runner_cfg = plain(cfg.get("runner")) or {}
-    log.info("grid: %d cells (%s experiment)", len(grid.cells), grid.experiment["name"])
-    say_not_applicable(grid.cells)
-    if backend(runner_cfg) == "ray":
-        check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
-    if on_checked is not None:
-        on_checked()
+    grid, runner_cfg = _checked_grid(cfg, work, on_checked)
     cache_dir, cache_note = cache_state(cfg)
     progress.phase("render data set")
     data = work.load_data(cfg, grid)
@@ -110,61 +100,113 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
     store = ResultStore(output_dir)
     if on_start is not None:
         on_start(grid, data.fingerprint)
-    summaries: dict[str, dict] = {}
-    hashes = {cell.key: grid.cell_hash(cell, data.fingerprint, seed) for cell in grid.cells}
+    cells = _Cells(grid, store, {cell.key: grid.cell_hash(cell, data.fingerprint, seed) for cell in grid.cells},
+                   hooks, progress)
     reuse = work.reuse(store, grid, data, seed) if work.reuse is not None else None
+    cells.reuse = reuse
+    pending = cells.sort_out()
+    stats = _evaluate(work, grid, data, pending, reuse, cells, runner_cfg, seed, cache_dir)
+    cache_note = _cache_warnings(stats, cache_note, cache_dir)
+    ordered = [cells.summaries[cell.key] for cell in grid.cells]
+    outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, cells.resumed, data.fingerprint,
+                           time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
+                           skipped_items=list(getattr(data, "skipped", ())), cache=cache_note)
+    outcome.table = store.write_table(ordered)
+    write_run_record(outcome, data, reuse)
+    return outcome
 
-    def finish(cell, outcome: Mapping) -> None:
+
+def _checked_grid(cfg: Mapping, work: CellWork, on_checked: Callable[[], None] | None) -> tuple[MethodGrid, dict]:
+    """The grid of ``cfg`` and its run settings, once its cells and the Ray address are checked (before any
+    work)."""
+    grid = work.build_grid(cfg)
+    runner_cfg = plain(cfg.get("runner")) or {}
+    log.info("grid: %d cells (%s experiment)", len(grid.cells), grid.experiment["name"])
+    say_not_applicable(grid.cells)
+    if backend(runner_cfg) == "ray":
+        check_address(runner_cfg)  # a cluster that does not answer stops here, in seconds
+    if on_checked is not None:
+        on_checked()
+    return grid, runner_cfg
+
+
+class _Cells:
+    """The cells of one sweep as they are kept, evaluated and written: their summaries, and ``finish`` for each
+    cell whose outcome is in."""
+
+    def __init__(self, grid: MethodGrid, store: ResultStore, hashes: dict[str, str], hooks, progress: Progress):
+        self.grid, self.store, self.hashes, self.hooks, self.progress = grid, store, hashes, hooks, progress
+        self.reuse: ViewReuse | None = None
+        self.summaries: dict[str, dict] = {}
+        self.not_applicable: list = []
+        self.resumed = 0
+        self.started = False
+
+    def sort_out(self) -> list:
+        """Keep the cells an earlier run finished (same hash); returns those to evaluate (the NA ones wait for
+        :meth:`start`)."""
+        pending = []
+        for cell in self.grid.cells:
+            done = self.store.complete(cell.key, self.hashes[cell.key])
+            if done is not None:
+                self.summaries[cell.key], self.resumed = done, self.resumed + 1
+                for hook in self.hooks:  # hooks skip what they already have (e.g. cells logged before a kill)
+                    hook(cell, done, None)
+            elif cell.na_reason is not None:
+                self.not_applicable.append(cell)
+            else:
+                pending.append(cell)
+        log.info("%d cell(s) to evaluate, %d kept from an earlier run, %d not applicable", len(pending),
+                 self.resumed, len(self.not_applicable))
+        return pending
+
+    def start(self) -> None:
+        """Once, when the executor is up: NA cells are written, the bar counts every cell."""
+        if self.started:
+            return
+        self.started = True
+        self.progress.phase("evaluate cells", total=len(self.grid.cells), done=self.resumed)
+        for cell in self.not_applicable:
+            self.finish(cell, {"na": cell.na_reason})
+
+    def finish(self, cell, outcome: Mapping) -> None:
+        """Write a cell whose outcome is in (rows, NA or error), and tell the hooks."""
+        reuse = self.reuse
         if reuse is not None:
             outcome = reuse.complete(cell, outcome)
-        summary = cell_summary(cell, hashes[cell.key], outcome, grid.experiment["name"])
+        summary = cell_summary(cell, self.hashes[cell.key], outcome, self.grid.experiment["name"])
         rows = outcome.get("rows")
         covered = reuse.coverage(cell) if reuse is not None and summary["status"] == "ok" else None
-        store.write_cell(cell.key, summary, rows, covered)
-        summaries[cell.key] = summary
+        self.store.write_cell(cell.key, summary, rows, covered)
+        self.summaries[cell.key] = summary
         log.info("cell %s: %s%s", cell.key, summary["status"], f" ({summary['reason']})" if summary.get("reason")
                  else "")
-        progress.cell_done()
-        for hook in hooks:
+        self.progress.cell_done()
+        for hook in self.hooks:
             hook(cell, summary, rows)
 
-    pending, not_applicable, resumed = [], [], 0
-    for cell in grid.cells:
-        done = store.complete(cell.key, hashes[cell.key])
-        if done is not None:
-            summaries[cell.key], resumed = done, resumed + 1
-            for hook in hooks:  # hooks skip what they already have (e.g. cells logged before a kill)
-                hook(cell, done, None)
-        elif cell.na_reason is not None:
-            not_applicable.append(cell)
-        else:
-            pending.append(cell)
-    log.info("%d cell(s) to evaluate, %d kept from an earlier run, %d not applicable", len(pending), resumed,
-             len(not_applicable))
 
-    def start_evaluating() -> None:  # the executor is up: NA cells are written, the bar counts every cell
-        progress.phase("evaluate cells", total=len(grid.cells), done=resumed)
-        for cell in not_applicable:
-            finish(cell, {"na": cell.na_reason})
-
+def _evaluate(work: CellWork, grid: MethodGrid, data, pending: list, reuse: ViewReuse | None, cells: _Cells,
+              runner_cfg: dict, seed: int, cache_dir) -> RunStats:
+    """Evaluate the pending cells, one group per set of items still to evaluate (usually one)."""
     ready, groups = reuse.plan(pending) if reuse is not None else ([], [(data, pending)] if pending else [])
     if reuse is not None:
         log.info("view reuse: %d (cell, image or pair) rows kept from an earlier run, %d to evaluate",
                  reuse.reused, reuse.evaluated)
-    stats, started = RunStats(), []
-
-    def started_once() -> None:
-        if not started:
-            started.append(True)
-            start_evaluating()
-
+    stats = RunStats()
     if groups and backend(runner_cfg) == "ray":
-        progress.phase("start Ray")
-    for part, cells in groups:  # one group per set of items still to evaluate (usually one)
-        stats = _added(stats, work.evaluate(grid, part, cells, runner_cfg, seed, cache_dir, finish, started_once))
-    started_once()
+        cells.progress.phase("start Ray")
+    for part, members in groups:
+        stats = _added(stats, work.evaluate(grid, part, members, runner_cfg, seed, cache_dir, cells.finish,
+                                            cells.start))
+    cells.start()
     for cell in ready:  # every item's rows kept: nothing to evaluate
-        finish(cell, {"rows": pd.DataFrame()})
+        cells.finish(cell, {"rows": pd.DataFrame()})
+    return stats
+
+
+def _cache_warnings(stats: RunStats, cache_note: str, cache_dir) -> str:
+    """The cache's note with the writes that failed, which are also said in the log and on stderr."""
     if stats.cache_write_errors:
         cache_note = f"{cache_note} ({stats.cache_write_errors} task(s) could not write to it and went on without)"
         log.info("%d task(s) could not write to the keypoint cache %s; they ran without it",  # the log file's copy
@@ -176,13 +218,7 @@ def run_sweep(cfg: Mapping, output_dir: str | Path, hooks: tuple[CellHook, ...] 
         log.info("%d task(s) could not write dense descriptor maps under %s", stats.dense_write_errors, cache_dir)
         print(f"gtsweep: warning: {stats.dense_write_errors} task(s) could not write dense descriptor maps to "
               f"{Path(cache_dir) / 'dense'}; they computed them without storing", file=sys.stderr)
-    ordered = [summaries[cell.key] for cell in grid.cells]
-    outcome = SweepOutcome(Path(output_dir), grid, ordered, stats, resumed, data.fingerprint,
-                           time.perf_counter() - start, failed=[s["key"] for s in ordered if s["status"] == "error"],
-                           skipped_items=list(getattr(data, "skipped", ())), cache=cache_note)
-    outcome.table = store.write_table(ordered)
-    write_run_record(outcome, data, reuse)
-    return outcome
+    return cache_note
 
 
 def say_not_applicable(cells) -> None:
@@ -197,63 +233,8 @@ def say_not_applicable(cells) -> None:
         print(f"gtsweep: note: {note}", file=sys.stderr)
 
 
-@dataclass(frozen=True)
-class PairData:
-    """A data set of images and pairs (:func:`gtsweep.datasets.load_dataset`) as the skeleton reads it."""
-
-    dataset: object
-    fingerprint: str
-
-    @property
-    def name(self) -> str:
-        return self.dataset.name
-
-    @property
-    def skipped(self) -> list[str]:
-        return list(getattr(self.dataset, "skipped", []))
-
-
 def _added(a: RunStats, b: RunStats) -> RunStats:
     return RunStats(**{f.name: getattr(a, f.name) + getattr(b, f.name) for f in fields(RunStats)})
-
-
-def _load_pairs(cfg: Mapping, grid: Grid) -> PairData:
-    dataset = load_dataset(cfg["dataset"])
-    for kind in [name for name, transform in grid.transforms.items() if transform.get("kind") == "pairs"]:
-        if not dataset.pairs(kind):  # a data set too small for the pair rules: one line before any work
-            why = dataset.empty_kinds.get(kind, f"dataset.n_{kind}?")
-            raise BadInput(f"data set '{dataset.name}' has no {kind} pairs: {why}")
-    if cfg["dataset"].get("pose_check") and dataset.pairs("incremental"):
-        check_the_poses(dataset)
-    return PairData(dataset, dataset.fingerprint())
-
-
-def check_the_poses(dataset) -> None:
-    """Before any work: poses that disagree with the images stop the sweep in one line (which convention would
-    fit); poses that agree are said in the log."""
-    from gtsweep.datasets.posecheck import check_poses
-
-    found = check_poses(dataset)
-    log.info("%s", found.line())
-    if not found.consistent:
-        raise BadInput(f"{found.line()}; or dataset.pose_check=false to run anyway")
-
-
-def _evaluate_pairs(grid: Grid, data: PairData, cells: list, runner_cfg: dict, seed: int, cache_dir, finish,
-                    on_started) -> RunStats:
-    # Load (and so check) every image the cells read before the first result file is written: bad data stops the
-    # run clean.
-    transforms = {name: grid.transforms[name] for name in sorted({cell.transform for cell in cells})}
-    shards = load_shards(data.dataset, transforms, int(runner_cfg["shard_size"]))
-    jobs = plan(grid, {kind: len(s) for kind, s in shards.items()}, {cell.key for cell in cells})
-    return run(grid, shards, jobs, runner_cfg, seed, cache_dir, finish, on_started=on_started)
-
-
-#: The pair experiments (detection, matching, pose): detector x selector (x descriptor x matcher x estimator) x
-#: transform on images and image pairs.
-PAIRS = CellWork(build_grid, _load_pairs, _evaluate_pairs,
-                 reuse=lambda store, grid, data, seed: ViewReuse(store, grid, data.dataset, seed,
-                                                                 lambda part: PairData(part, data.fingerprint)))
 
 
 def write_run_record(outcome: SweepOutcome, data, reuse: ViewReuse | None = None) -> None:

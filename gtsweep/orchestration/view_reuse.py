@@ -28,7 +28,7 @@ import pandas as pd
 from gtsweep.core.config import config_hash
 from gtsweep.datasets.core import fingerprint_of
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.orchestration.grid import Cell, Grid
+from gtsweep.orchestration.grid import MethodCell, MethodGrid
 from gtsweep.orchestration.results import ResultStore, stored_rows
 from gtsweep.orchestration.shards import shard_kind
 
@@ -79,7 +79,7 @@ class ViewReuse:
     ``reused`` and ``evaluated`` count (cell, image or pair) combinations taken from the stored rows and sent to
     evaluation."""
 
-    def __init__(self, store: ResultStore, grid: Grid, dataset, seed: int, wrap=lambda dataset: dataset):
+    def __init__(self, store: ResultStore, grid: MethodGrid, dataset, seed: int, wrap=lambda dataset: dataset):
         self.store, self.grid, self.seed, self.wrap = store, grid, seed, wrap  # wrap: a cut data set as the sweep's
         kinds = {shard_kind(name, cfg) for name, cfg in grid.transforms.items()}
         self.items = {kind: item_fingerprints(dataset, kind) for kind in sorted(kinds)}
@@ -87,17 +87,17 @@ class ViewReuse:
         self.kept: dict[str, pd.DataFrame] = {}
         self.reused = self.evaluated = 0
 
-    def _kind(self, cell: Cell) -> str:
+    def _kind(self, cell: MethodCell) -> str:
         return shard_kind(cell.transform, self.grid.transforms[cell.transform])
 
-    def reuse_key(self, cell: Cell) -> str:
+    def reuse_key(self, cell: MethodCell) -> str:
         return reuse_key(self.grid, cell, self.seed, library_versions())
 
-    def coverage(self, cell: Cell) -> dict:
+    def coverage(self, cell: MethodCell) -> dict:
         """What a cell evaluated on this data set covers: its reuse key and its items' fingerprints."""
         return {"reuse_key": self.reuse_key(cell), "items": self.items[self._kind(cell)]}
 
-    def plan(self, cells: list[Cell]) -> tuple[list[Cell], list[tuple[object, list[Cell]]]]:
+    def plan(self, cells: list[MethodCell]) -> tuple[list[MethodCell], list[tuple[object, list[MethodCell]]]]:
         """``(ready, groups)``: the cells whose stored rows cover every item already, and the others grouped by
         the items they still need, each group with the data set cut to those items."""
         ready, groups = [], {}
@@ -121,7 +121,7 @@ class ViewReuse:
                 ready.append(cell)
         return ready, [(self.wrap(subset(self.dataset, set(missing))), group) for missing, group in groups.items()]
 
-    def complete(self, cell: Cell, outcome: dict) -> dict:
+    def complete(self, cell: MethodCell, outcome: dict) -> dict:
         """``outcome`` of a cell's new items, with the rows it kept merged in, in the data set's order."""
         kept = self.kept.pop(cell.key, None)
         if kept is None or "rows" not in outcome:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Callable
 
 import pandas as pd
 
@@ -28,9 +29,8 @@ from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.results import VARIANT_COLUMNS, summary_table
 from gtsweep.report.breakdown import mean_summary
-from gtsweep.report.output import write_report
 from gtsweep.report.samples import load_views
-from gtsweep.report.scale import load_scale
+from gtsweep.report.scale import Scale, load_scale
 from gtsweep.report.settings import write_settings
 from gtsweep.report.tables import ALPHA, load_summaries
 
@@ -63,9 +63,15 @@ def _job_order(name: str):
     return (0, int(name)) if name.isdigit() else (1, name)
 
 
-def combine(sweep_dir: str | Path, plots: bool = True, by: str | None = None, alpha: float = ALPHA) -> list[Path]:
-    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written. The report's
-    intervals come from every repeat's per-view rows (each repeat a stratum of its own, images matched across)."""
+#: ``write(summaries, out_dir, views, scale) -> files``: a kind's report of the repeats' mean summaries, with every
+#: repeat's per-view rows (``{key: rows}``, a ``repeat`` column telling them apart) and the data set's scale.
+ReportWriter = Callable[[list[dict], Path, dict, Scale], list[Path]]
+
+
+def combine(sweep_dir: str | Path, report_of: Callable[[list[dict]], ReportWriter], alpha: float = ALPHA) -> list[Path]:
+    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written. ``report_of(all the
+    jobs' summaries)`` gives the report of their experiment kind (its entry's). The report's intervals come from
+    every repeat's per-view rows (each repeat a stratum of its own, images matched across)."""
     sweep_dir = Path(sweep_dir)
     jobs = jobs_of(sweep_dir)
     if not jobs:
@@ -81,26 +87,27 @@ def combine(sweep_dir: str | Path, plots: bool = True, by: str | None = None, al
     files.append(_write(out / "summary.csv", summary.to_csv(index=False)))
     headlines = {schema.headline(schema.experiment_of(s)) for summaries in by_job.values() for s in summaries}
     files.append(_write(out / "summary.md", headline_markdown(summary, jobs, headlines)))
+    write = report_of([s for summaries in by_job.values() for s in summaries])
     settings = sorted({job["setting"] for job in jobs})
     for setting in settings:
-        cells: dict[str, list[dict]] = {}
-        views: dict[str, list[pd.DataFrame]] = {}
-        for job in (j for j in jobs if j["setting"] == setting):
-            for s in by_job[job["job"]]:
-                cells.setdefault(s["key"], []).append(s)
-            for key, rows in load_views(job["dir"]).items():
-                views.setdefault(key, []).append(rows.assign(repeat=job["job"]))
+        cells, views = _repeats(jobs, by_job, setting)
         target = out / "report" / (_slug(setting) if len(settings) > 1 else "")
-        if headlines == {schema.headline("localization")}:  # experiment=localization: its own report
-            from gtsweep.report.localization import write_localization_report
-
-            files += write_localization_report([mean_summary(v) for v in cells.values()], target, plots=plots)[1]
-        else:
-            files += write_report([mean_summary(v) for v in cells.values()], target, plots=plots,
-                                  views={k: pd.concat(v, ignore_index=True) for k, v in views.items()}, by=by,
-                                  alpha=alpha, scale=load_scale(jobs[0]["dir"]))[1]
+        files += write([mean_summary(v) for v in cells.values()], target,
+                       {k: pd.concat(v, ignore_index=True) for k, v in views.items()}, load_scale(jobs[0]["dir"]))
     files += write_settings(out, jobs, by_job, {job["job"]: load_views(job["dir"]) for job in jobs}, alpha)
     return files
+
+
+def _repeats(jobs: list[dict], by_job: dict[str, list[dict]], setting: str) -> tuple[dict, dict]:
+    """The summaries (``{key: [one per repeat]}``) and per-view rows (``{key: [frames]}``) of one setting."""
+    cells: dict[str, list[dict]] = {}
+    views: dict[str, list[pd.DataFrame]] = {}
+    for job in (j for j in jobs if j["setting"] == setting):
+        for s in by_job[job["job"]]:
+            cells.setdefault(s["key"], []).append(s)
+        for key, rows in load_views(job["dir"]).items():
+            views.setdefault(key, []).append(rows.assign(repeat=job["job"]))
+    return cells, views
 
 
 def repeat_table(rows: pd.DataFrame) -> pd.DataFrame:

@@ -7,8 +7,8 @@ from typing import Mapping
 
 from gtsweep.core.config import config_hash, plain
 from gtsweep.core.errors import BadInput
-from gtsweep.optimize.search_space import parse_space
-from gtsweep.optimize.study_settings import job_transforms
+from gtsweep.experiments.optimize.search_space import parse_space
+from gtsweep.experiments.optimize.study_settings import job_transforms
 from gtsweep.orchestration.grid import declared_methods, resolve_group
 
 

@@ -15,17 +15,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-from gtsweep.core.config import config_hash, plain
+from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import Choice, Range, check_all
 from gtsweep.datasets.core import read_gray
 from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.mapping import covered_area, load_localization
-from gtsweep.orchestration import loctasks
+from gtsweep.experiments.localization import tasks as loctasks
 from gtsweep.orchestration.executor import make_executor
-from gtsweep.orchestration.grid import declared_methods, pairings_of, resolve_group, selectors_of, with_survey_method
-from gtsweep.orchestration.runner import RunStats
+from gtsweep.orchestration.grid import (
+    MethodCell,
+    MethodGrid,
+    pairings_of,
+    resolve_group,
+    selectors_of,
+    with_survey_method,
+)
 from gtsweep.orchestration.skeleton import CellWork, SweepOutcome, run_sweep
+from gtsweep.orchestration.tasks import RunStats
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.match import MATCHERS
@@ -44,8 +51,11 @@ SETTINGS = {
 
 
 @dataclass(frozen=True)
-class LocCell:
+class LocCell(MethodCell):
     """One cell; its ``transform`` is "map" (MLflow run names read it: ``sift·sift·map·flann·magsac``)."""
+
+    NAMED = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+    KEY = ("detector", "selector", "descriptor", "matcher", "estimator")
 
     detector: str
     selector: str
@@ -54,20 +64,14 @@ class LocCell:
     estimator: str
     na_reason: str | None = None
 
-    @property
-    def key(self) -> str:
-        return "__".join([self.detector, self.selector, self.descriptor, self.matcher, self.estimator])
-
     transform = "map"
-
-    @property
-    def methods(self) -> dict:
-        return {"detector": self.detector, "selector": self.selector, "descriptor": self.descriptor,
-                "transform": self.transform, "matcher": self.matcher, "estimator": self.estimator}
 
 
 @dataclass
-class LocGrid:
+class LocGrid(MethodGrid):
+    """The methods of the localization cells (no transforms: a map's cells have none)."""
+
+    DECLARED_GROUPS = ("detector", "selector", "descriptor")
     experiment: dict
     detectors: dict
     selectors: dict
@@ -76,20 +80,6 @@ class LocGrid:
     estimators: dict
     cells: list[LocCell] = field(default_factory=list)
     transforms: dict = field(default_factory=dict)
-
-    @property
-    def declared(self) -> dict:
-        return declared_methods({"detector": self.detectors, "selector": self.selectors,
-                                 "descriptor": self.descriptors})
-
-    def cell_config(self, cell: LocCell, dataset_fingerprint: str, seed: int) -> dict:
-        return {"methods": cell.methods, "detector": self.detectors[cell.detector],
-                "selector": self.selectors[cell.selector], "descriptor": self.descriptors[cell.descriptor],
-                "transform": {}, "matcher": self.matchers[cell.matcher], "estimator": self.estimators[cell.estimator],
-                "experiment": self.experiment, "dataset": dataset_fingerprint, "seed": seed}
-
-    def cell_hash(self, cell: LocCell, dataset_fingerprint: str, seed: int) -> str:
-        return config_hash(self.cell_config(cell, dataset_fingerprint, seed))
 
 
 def build_localization_grid(cfg: Mapping) -> LocGrid:
@@ -142,20 +132,7 @@ def run_localization(cfg: Mapping, output_dir: str | Path, **options) -> SweepOu
 def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, seed: int, cache_dir, finish,
          stats: RunStats) -> None:
     """Submit the map and query tasks of ``cells`` and report each cell as its query shards come in."""
-    import pandas as pd
-
-    size = int(runner_cfg["shard_size"])
-    experiment = grid.experiment
-    # mapping images are read in their tasks (a real map has thousands); the queries here, once
-    mapping = {t: [{"path": s.path, "pose": s.pose} for s in samples] for t, samples in data.maps.items()}
-    shapes = {t: read_gray(m[0]["path"]).shape for t, m in mapping.items() if m}
-    queries = [{"id": q.sample.id, "texture": q.texture, "in_map": q.in_map, "pose": q.sample.pose,
-                "image": q.sample.load()} for q in data.queries]
-    areas = {t: {n: covered_area([s.pose for s in data.maps[t][:n]], shapes[t]) /
-                 (data.px_per_mm ** 2 * 1e6) for n in data.sizes(t)} for t in data.maps if data.maps[t]}
-    map_refs = {t: [executor.put(m[i:i + size]) for i in range(0, len(m), size)] for t, m in mapping.items()}
-    query_refs = {t: [executor.put(part[i:i + size]) for i in range(0, len(part), size)]
-                  for t in data.maps for part in [[q for q in queries if q["texture"] == t]] if part}
+    map_refs, query_refs, areas = _put_data(data, executor, int(runner_cfg["shard_size"]))
     groups: dict[tuple, list[LocCell]] = defaultdict(list)
     for cell in cells:
         groups[(cell.detector, cell.selector, cell.descriptor, cell.matcher)].append(cell)
@@ -177,8 +154,30 @@ def _run(grid: LocGrid, data, cells: list[LocCell], executor, runner_cfg: dict, 
                 tracker[job]["remaining"] += 1
                 stats.pairing_tasks += 1
                 executor.submit(loctasks.query_shard, shard, handle, areas[texture], method,
-                                (matcher, grid.matchers[matcher]["params"]), estimators, experiment, seed,
+                                (matcher, grid.matchers[matcher]["params"]), estimators, grid.experiment, seed,
                                 cache_dir, grid.declared, tag=("query", job))
+    _collect(executor, tracker, stats, finish)
+
+
+def _put_data(data, executor, size: int) -> tuple[dict, dict, dict]:
+    """Per floor: the mapping images' and the queries' shards put to the executor, and each map size's covered
+    area (m2). Mapping images are read in their tasks (a real map has thousands); the queries here, once."""
+    mapping = {t: [{"path": s.path, "pose": s.pose} for s in samples] for t, samples in data.maps.items()}
+    shapes = {t: read_gray(m[0]["path"]).shape for t, m in mapping.items() if m}
+    queries = [{"id": q.sample.id, "texture": q.texture, "in_map": q.in_map, "pose": q.sample.pose,
+                "image": q.sample.load()} for q in data.queries]
+    areas = {t: {n: covered_area([s.pose for s in data.maps[t][:n]], shapes[t]) /
+                 (data.px_per_mm ** 2 * 1e6) for n in data.sizes(t)} for t in data.maps if data.maps[t]}
+    map_refs = {t: [executor.put(m[i:i + size]) for i in range(0, len(m), size)] for t, m in mapping.items()}
+    query_refs = {t: [executor.put(part[i:i + size]) for i in range(0, len(part), size)]
+                  for t in data.maps for part in [[q for q in queries if q["texture"] == t]] if part}
+    return map_refs, query_refs, areas
+
+
+def _collect(executor, tracker: dict[tuple, dict], stats: RunStats, finish) -> None:
+    """Count every task's cache use; finish a job's cells once all its query shards are in."""
+    import pandas as pd
+
     for tag, result in executor.results():
         stats.cache_hits += result.get("hits", 0)
         stats.cache_misses += result.get("misses", 0)

@@ -9,7 +9,7 @@ from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import DEFAULT_CACHE_DIR
 from gtsweep.core.ranges import Choice, ListOf, Range
-from gtsweep.optimize.objective import OBJECTIVES
+from gtsweep.experiments.optimize.objective import OBJECTIVES
 
 POSE_DATA = ("optimisation", "incremental")
 

@@ -1,12 +1,12 @@
 """``experiment=optimize``: tune method parameters on the optimisation split, as the survey did (section 5).
 
 One Optuna study per selected detector (objective ``repeatability``) or per ``[detector, descriptor]`` pairing
-(objective ``pose_success``): :mod:`~gtsweep.optimize.targets`. Trials run on the sweep's executor (Ray tasks, or
-in-process with ``runner.backend=serial``): :mod:`~gtsweep.optimize.optuna_study`. The study lives in an RDB storage
+(objective ``pose_success``): :mod:`~gtsweep.experiments.optimize.targets`. Trials run on the sweep's executor (Ray tasks, or
+in-process with ``runner.backend=serial``): :mod:`~gtsweep.experiments.optimize.optuna_study`. The study lives in an RDB storage
 (sqlite by default): rerunning the same command continues it. Every trial is an MLflow child run of the study's
 run (:mod:`gtsweep.tracking.study`). The best parameters are written as ``./tuned/<group>/tuned/<name>.yaml`` in
 the working directory (``experiment.tuned_root``), a config file Hydra selects with ``detector=[tuned/<name>]``
-(``./tuned`` is on the search path before the package's own tuned configs; :mod:`~gtsweep.optimize.tuned_files`).
+(``./tuned`` is on the search path before the package's own tuned configs; :mod:`~gtsweep.experiments.optimize.tuned_files`).
 """
 from __future__ import annotations
 
@@ -17,16 +17,16 @@ from pathlib import Path
 from gtsweep.core.config import plain
 from gtsweep.core.interrupts import Interrupted
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-from gtsweep.optimize.tuned_files import (
+from gtsweep.experiments.optimize.tuned_files import (
     defaults_trial,
     describe_best,
     format_summary,
     tuned_header,
     write_tuned,
 )
-from gtsweep.optimize.optuna_study import complete_trials, open_study, optimise
-from gtsweep.optimize.study_settings import job_transforms, read_settings
-from gtsweep.optimize.targets import build_targets, study_name
+from gtsweep.experiments.optimize.optuna_study import complete_trials, open_study, optimise
+from gtsweep.experiments.optimize.study_settings import job_transforms, read_settings
+from gtsweep.experiments.optimize.targets import build_targets, study_name
 from gtsweep.orchestration.cache import cache_directory
 from gtsweep.orchestration.executor import backend, check_address, make_executor
 from gtsweep.orchestration.shards import load_shards

@@ -17,9 +17,10 @@ from typing import Callable
 
 import pandas as pd
 
-from gtsweep.orchestration import tasks
+from gtsweep.experiments.pairs import tasks
 from gtsweep.orchestration.executor import make_executor
-from gtsweep.orchestration.grid import Cell, Grid
+from gtsweep.orchestration.tasks import RunStats
+from gtsweep.experiments.pairs.grid import Cell, Grid
 from gtsweep.orchestration.shards import shard_kind
 from gtsweep.stages import device as devices
 from gtsweep.stages.describe import DESCRIPTORS
@@ -53,22 +54,6 @@ class DetectionJob:
     cell: Cell | None = None  # the detection experiment's cell fed by this job
     pairings: list[PairingJob] = field(default_factory=list)
     keep_raw: bool = True  # the detector's raw output to disk: another job selects from it too
-
-
-@dataclass
-class RunStats:
-    """What a run did: cache hits and misses (a miss is one detector call), bad cache entries replaced, failed
-    cache writes, the same for dense descriptor maps (a miss is one network run, e.g. XFeat's), and task counts."""
-
-    cache_hits: int = 0
-    cache_misses: int = 0
-    cache_corrupt: int = 0
-    cache_write_errors: int = 0
-    dense_hits: int = 0
-    dense_misses: int = 0
-    dense_write_errors: int = 0
-    detection_tasks: int = 0
-    pairing_tasks: int = 0
 
 
 def plan(grid: Grid, n_shards: dict[str, int], pending: set[str]) -> list[DetectionJob]:

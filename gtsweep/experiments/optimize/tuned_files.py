@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Mapping
 
 from gtsweep.core.atomic import write_atomically
-from gtsweep.optimize.targets import Target
+from gtsweep.experiments.optimize.targets import Target
 
 
 def tuned_node(target: Target, values: Mapping) -> dict:
@@ -65,7 +65,7 @@ def storage_label(storage: str) -> str:
 
 
 def stop_reason(complete: int, settings: Mapping) -> str:
-    """Why the study stopped (:mod:`gtsweep.optimize.stopping`): its best settled, or the trial maximum."""
+    """Why the study stopped (:mod:`gtsweep.experiments.optimize.stopping`): its best settled, or the trial maximum."""
     patience, gain = settings.get("patience"), settings.get("min_improvement") or 0
     if patience and complete < settings["n_trials"]:
         return f"stopped: no gain > {gain:g} in the last {patience} trials"

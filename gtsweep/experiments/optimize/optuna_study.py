@@ -20,11 +20,11 @@ from typing import Mapping
 
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.seeds import stable_seed
-from gtsweep.optimize.objective import evaluate
-from gtsweep.optimize.search_space import defaults_in_space
-from gtsweep.optimize.stopping import settled
-from gtsweep.optimize.study_settings import job_transforms
-from gtsweep.optimize.targets import Target
+from gtsweep.experiments.optimize.objective import evaluate
+from gtsweep.experiments.optimize.search_space import defaults_in_space
+from gtsweep.experiments.optimize.stopping import settled
+from gtsweep.experiments.optimize.study_settings import job_transforms
+from gtsweep.experiments.optimize.targets import Target
 
 
 #: The studies this process optimises (their locks are held for the process's life).
@@ -111,7 +111,7 @@ def complete_trials(study) -> list:
 
 
 def trial_job(target: Target, settings: Mapping, values: Mapping, seed: int, cache_dir: str | None) -> dict:
-    """The work of one trial for :func:`gtsweep.optimize.objective.evaluate`."""
+    """The work of one trial for :func:`gtsweep.experiments.optimize.objective.evaluate`."""
     tuned = {**target.defaults, **values}
     detector_params = tuned if target.group == "detector" else target.detector_params
     return {"objective": settings["objective"], "detector": target.detector, "detector_params": detector_params,
