@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import skimage.data
 
+import gtsweep.experiments  # noqa: F401 - the experiment kinds registered (their rows in the metric schema)
+
 
 @pytest.fixture(scope="session")
 def gravel_1288x964() -> np.ndarray:

@@ -2,6 +2,7 @@
 one schema entry reaching results.csv, MLflow and the report with no other edit."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -25,14 +26,17 @@ NAN = math.nan
 
 @pytest.fixture
 def toy(request):
-    """Declare ``metric`` for one test only."""
-    metric = request.param
+    """Declare ``metric`` for one test only, in the rows of experiment ``kind`` (``request.param``: both)."""
+    metric, kind = request.param
+    rows = schema.ROWS[kind]
     schema.register(metric)
+    schema.ROWS[kind] = dataclasses.replace(rows, metrics=(*rows.metrics, metric.name))
     yield metric
+    schema.ROWS[kind] = rows
     schema.unregister(metric.name)
 
 
-MATCH_SHARE = schema.Metric("match_share", "matching", "share", "matches per described test keypoint (a test's)",
+MATCH_SHARE = schema.Metric("match_share", "share", "matches per described test keypoint (a test's)",
                             per_view=lambda rows: rows["n_matches"] / rows["n_described_test"])
 
 
@@ -45,8 +49,9 @@ def test_mean_skips_undefined_views():
     assert math.isnan(summarize(rows.iloc[[1]], "detection")["metrics"]["ambiguity"])
 
 
-@pytest.mark.parametrize("toy", [schema.Metric("pooled", "matching", "share", "Σ correct / Σ matches (test)",
-                                               aggregation="ratio", of=("n_correct", "n_matches"))], indirect=True)
+@pytest.mark.parametrize("toy", [(schema.Metric("pooled", "share", "Σ correct / Σ matches (test)",
+                                                aggregation="ratio", of=("n_correct", "n_matches")), "matching")],
+                         indirect=True)
 def test_ratio_pools_over_views(toy):
     # per view 1/2 and 9/10 (mean 0.7); pooled (1 + 9) / (2 + 10) = 10/12; the NaN view is left out
     rows = pd.DataFrame({"n_correct": [1, 9, NAN], "n_matches": [2, 10, 4], "strength": [0.0, 90.0, 90.0]})
@@ -56,8 +61,8 @@ def test_ratio_pools_over_views(toy):
     assert math.isnan(summarize(rows.assign(n_matches=0, n_correct=0), "matching")["metrics"]["pooled"])
 
 
-@pytest.mark.parametrize("toy", [schema.Metric("found", "detection", "share", "views with a hit (test)",
-                                               aggregation="rate")], indirect=True)
+@pytest.mark.parametrize("toy", [(schema.Metric("found", "share", "views with a hit (test)", aggregation="rate"),
+                                 "detection")], indirect=True)
 def test_rate_is_the_share_of_ones(toy):
     rows = pd.DataFrame({"found": [1.0, 0.0, 1.0, NAN]})
     assert summarize(rows, "detection")["metrics"]["found"] == pytest.approx(2 / 3)
@@ -97,7 +102,7 @@ def test_schema_declares_every_row_column():
     assert set(schema.STEP_KEYS) <= set(schema.META)
     assert {"n_test_valid", "n_ref_valid", "n_repeated", "n_kp_ref", "n_described_ref", "n_described_test",
             "n_inliers", "t_detect", "t_describe", "t_match", "t_pose", "view", "texture"} <= declared
-    assert {e: schema.headline(e) for e in schema.EXPERIMENT_ROWS} == {
+    assert {e: schema.headline(e) for e in schema.ROWS} == {
         "detection": "repeatability", "matching": "precision", "pose": "pose_success",
         "localization": "localization_success"}
     with pytest.raises(GtsweepError, match="already declared"):
@@ -124,7 +129,7 @@ def test_terminal_summary_shows_the_schema_headline():
     assert schema.experiment_of({"methods": {"descriptor": "brief"}, "metrics": {"precision": 1.0}}) == "matching"
 
 
-@pytest.mark.parametrize("toy", [MATCH_SHARE], indirect=True)
+@pytest.mark.parametrize("toy", [(MATCH_SHARE, "matching")], indirect=True)
 def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

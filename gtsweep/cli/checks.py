@@ -17,6 +17,7 @@ from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, causes, n
 from gtsweep.core.factories import check_composed
 from gtsweep.core.registry import availability, left_out_line, require_available
 from gtsweep.core.searchpath import Configs
+from gtsweep.experiments.kinds import EXPERIMENTS
 from gtsweep.experiments.pairs.grid import MOVED
 from gtsweep.orchestration.grid import REGISTRIES
 from gtsweep.orchestration.settings import check_settings
@@ -70,12 +71,12 @@ def forget_notes() -> None:
 
 def check_job(cfg, overrides, found: Configs) -> None:
     """What Hydra's composition does not check: a single-option group given a list, a method this install cannot
-    run, factories and plug-ins (:func:`gtsweep.core.factories.check_composed`), the run settings' ranges, the
+    run, factories and plug-ins (:func:`gtsweep.core.factories.check_composed`), the run settings' and its experiment kind's ranges, the
     device."""
     check_single_groups(overrides, found)
     require_available(*(REGISTRIES[g][n] for g in GRID_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
     check_composed(cfg, overrides)
-    check_settings(cfg)
+    check_settings(cfg, EXPERIMENTS.get((plain(cfg.get("experiment")) or {}).get("name")).settings)
     check_device(cfg)
     note_left_out()
 

@@ -15,22 +15,11 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from omegaconf import MISSING
-from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode, StringNode, ValueNode
-
-from gtsweep.core.ranges import Choice, Range
 from gtsweep.orchestration.grid import REGISTRIES
-from gtsweep.orchestration.settings import SETTINGS
+from gtsweep.orchestration.settings import SCHEMA_GROUP, SETTINGS, typed, typed_settings
 
-SCHEMA_GROUP = "schema"
-#: The sections of the primary config whose settings ``schema/run`` types (the experiment's vary per experiment).
+#: The sections of the primary config whose settings ``schema/run`` types (the experiment's are its kind's).
 RUN_SECTIONS = ("seed", "runner", "cache", "mlflow", "report")
-NODES = {bool: BooleanNode, int: IntegerNode, float: FloatNode, str: StringNode}
-
-
-def typed(value: Any) -> ValueNode:
-    """A node that admits values of the kind of ``value`` (an int where a float stands; None stays untyped)."""
-    return NODES.get(type(value), AnyNode)(value)
 
 
 def method_schema(name: str, defaults: Mapping[str, Any]) -> dict:
@@ -38,30 +27,9 @@ def method_schema(name: str, defaults: Mapping[str, Any]) -> dict:
     return {name: {"params": {key: typed(value) for key, value in defaults.items()}}}
 
 
-def setting_node(rule) -> ValueNode | None:
-    """An empty node of the type a setting's rule admits (None for a rule without one type, e.g. a list)."""
-    if isinstance(rule, Range):
-        return (IntegerNode if rule.integer else FloatNode)(MISSING, is_optional=rule.optional)
-    if isinstance(rule, Choice):
-        kinds = {type(choice) for choice in rule.options if choice is not None}
-        if len(kinds) == 1 and kinds.pop() in (bool, str):
-            return NODES[type(next(c for c in rule.options if c is not None))](MISSING, is_optional=rule.optional)
-    return None
-
-
 def run_schema() -> dict:
     """The typed run settings, nested as in the primary config (``runner.num_cpus`` -> ``{runner: {num_cpus}}``)."""
-    schema: dict = {}
-    for key, rule in SETTINGS.items():
-        node = setting_node(rule)
-        if node is None or key.split(".")[0] not in RUN_SECTIONS:
-            continue
-        *parents, leaf = key.split(".")
-        section = schema
-        for parent in parents:
-            section = section.setdefault(parent, {})
-        section[leaf] = node
-    return schema
+    return typed_settings({key: rule for key, rule in SETTINGS.items() if key.split(".")[0] in RUN_SECTIONS})
 
 
 def register_schemas() -> None:

@@ -1,10 +1,11 @@
 """The metric contract, declared once: every column of a sweep's per-view rows and how a cell aggregates it.
 
-Per-view rows (:mod:`gtsweep.evaluation.evaluate`, :mod:`gtsweep.orchestration.tasks`) hold the :data:`META`
-columns and metrics. Everything downstream reads this module: the cell summaries and ``results.csv``
+Per-view rows (:mod:`gtsweep.evaluation.evaluate`, each kind's tasks) hold the :data:`META` columns and metrics.
+Everything downstream reads this module: the cell summaries and ``results.csv``
 (:func:`gtsweep.orchestration.results.summarize`), MLflow, the report and the terminal summary. A column that is
 not declared here is an error, so a new metric needs only its :class:`Metric` entry (and a derived one only that:
-give it ``per_view``).
+give it ``per_view``). Which metrics an experiment kind's rows hold, its headline, curves and step are its entry's
+(:class:`Rows`, declared here by the experiment registry): this module names no kind.
 
 Aggregations over a cell's views (or the views of one step):
 
@@ -27,34 +28,16 @@ import pandas as pd
 
 from gtsweep.core.errors import GtsweepError
 
-#: The experiments whose rows the schema describes, each extending the one before it.
-EXPERIMENT_ROWS = ("detection", "matching", "pose", "localization")
 #: Columns that identify a view (not aggregated); the cell CSV keeps its transform too, so each row names its
 #: texture, transform and strength (the report's breakdowns, gtsweep.report.breakdown). Synthetic views have a
 #: strength, pairs NaN; reference_count is the number of reference keypoints kept (survey Table 7), NaN without
 #: experiment.reference_counts; rotation is a pair's ground-truth rotation in degrees (0-180; synthetic views have
-#: none: report/rotation.py).
-META = ("view", "image", "texture", "transform", "strength", "rotation", "reference_count")
-#: Identity columns of a localization row (one per query and map size): the query image, whether its floor is in
-#: the map (0: a foreign floor that must be rejected), the map's size, and the estimated pose in map coordinates
-#: (map px of the query's centre; degrees, atan2(P[1, 0], P[0, 0]) of the image -> map pose; NaN when none).
-LOCALIZATION_META = ("query", "in_map", "map_images", "est_x", "est_y", "est_theta")
-META = META + LOCALIZATION_META
-#: Meta columns a cell is also aggregated per value of (``by_<step>`` in the summary, ``<metric>_vs_<step>``).
-STEP_KEYS = ("strength", "reference_count", "map_images")
-#: Experiments whose rows repeat each view once per value of a step (localization: each query against every map
-#: size): their cell aggregates (and intervals) are those of the largest step value, so each view counts once;
-#: every value is in ``by_<step>``.
-HEADLINE_STEP = {"localization": "map_images"}
-#: The metric the terminal summary shows, per experiment.
-HEADLINE = {"detection": "repeatability", "matching": "precision", "pose": "pose_success",
-            "localization": "localization_success"}
-#: Metrics drawn against the transform strength, per experiment (report plots).
-CURVES = {"detection": ("repeatability",), "matching": ("precision",), "pose": ("pose_success", "precision"),
-          "localization": ("localization_success", "t_query")}
+#: none: report/rotation.py). A kind's own identity columns follow (:attr:`Rows.meta`, added as it is declared).
+META = ["view", "image", "texture", "transform", "strength", "rotation", "reference_count"]
+#: Meta columns a cell is also aggregated per value of (``by_<step>`` in the summary, ``<metric>_vs_<step>``); a
+#: kind's :attr:`Rows.step` is added as it is declared.
+STEP_KEYS = ["strength", "reference_count"]
 AGGREGATIONS = ("mean", "ratio", "rate")
-#: Experiment kinds added by :func:`add_experiment` (a plug-in's): their rows have only their own metrics.
-STANDALONE: set[str] = set()
 SCHEMA_FILE = "gtsweep/evaluation/schema.py"
 
 
@@ -63,7 +46,6 @@ class Metric:
     """One per-view column and its cell aggregate."""
 
     name: str
-    since: str  # the first experiment whose rows have it; the later ones have it too
     unit: str
     description: str  # one line, citing the survey section
     aggregation: str = "mean"
@@ -72,12 +54,6 @@ class Metric:
     of: tuple[str, str] | None = None  # (numerator, denominator) columns of a ratio
     digits: int = 2  # decimals in the report
     interval: bool = False  # a 95 % interval over views (Wilson for a rate, bootstrap otherwise)
-
-    @property
-    def experiments(self) -> tuple[str, ...]:
-        if self.since in STANDALONE:
-            return (self.since,)
-        return EXPERIMENT_ROWS[EXPERIMENT_ROWS.index(self.since):]
 
     @property
     def bounded(self) -> bool:
@@ -89,79 +65,49 @@ def _declare(*metrics: Metric) -> dict[str, Metric]:
     return {m.name: m for m in metrics}
 
 
-_DET, _MATCH, _POSE, _LOC = EXPERIMENT_ROWS
 METRICS: dict[str, Metric] = _declare(
-    Metric("repeatability", _DET, "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)",
+    Metric("repeatability", "share", "test keypoints with a reference keypoint of IoU > 0.5 (survey 4.1)",
            interval=True),
-    Metric("ambiguity", _DET, "matches", "mean number of reference matches of a repeated test keypoint (4.1)",
+    Metric("ambiguity", "matches", "mean number of reference matches of a repeated test keypoint (4.1)",
            interval=True),
-    Metric("few_keypoints", _DET, "share", "views with fewer than N test keypoints, '< N KPs' (survey 4.1)",
+    Metric("few_keypoints", "share", "views with fewer than N test keypoints, '< N KPs' (survey 4.1)",
            aggregation="rate", interval=True),
-    Metric("n_detected", _DET, "keypoints", "test keypoints found by the detector before selection (survey Table 2)",
+    Metric("n_detected", "keypoints", "test keypoints found by the detector before selection (survey Table 2)",
            digits=0),
-    Metric("n_kp_test", _DET, "keypoints", "test keypoints after selection (survey 2.2)", digits=0),
-    Metric("n_kp_ref", _DET, "keypoints", "reference keypoints after selection (survey 2.2)", reported=False),
-    Metric("n_test_valid", _DET, "keypoints", "test keypoints inside both masks (survey 4)", reported=False),
-    Metric("n_ref_valid", _DET, "keypoints", "reference keypoints inside both masks (survey 4)", reported=False),
-    Metric("n_repeated", _DET, "keypoints", "test keypoints that repeat, repeatability's numerator (4.1)",
+    Metric("n_kp_test", "keypoints", "test keypoints after selection (survey 2.2)", digits=0),
+    Metric("n_kp_ref", "keypoints", "reference keypoints after selection (survey 2.2)", reported=False),
+    Metric("n_test_valid", "keypoints", "test keypoints inside both masks (survey 4)", reported=False),
+    Metric("n_ref_valid", "keypoints", "reference keypoints inside both masks (survey 4)", reported=False),
+    Metric("n_repeated", "keypoints", "test keypoints that repeat, repeatability's numerator (4.1)",
            reported=False),
-    Metric("n_described_ref", _MATCH, "keypoints", "reference keypoints the descriptor kept (survey 2.3)",
+    Metric("n_described_ref", "keypoints", "reference keypoints the descriptor kept (survey 2.3)",
            reported=False),
-    Metric("n_described_test", _MATCH, "keypoints", "test keypoints the descriptor kept (survey 2.3)",
+    Metric("n_described_test", "keypoints", "test keypoints the descriptor kept (survey 2.3)",
            reported=False),
-    Metric("n_matches", _MATCH, "matches", "matches passing the ratio test 0.7 (survey 5)", digits=1),
-    Metric("n_correct", _MATCH, "matches", "number of correct matches, IoU > 0.5 (survey 4.2)", digits=1,
+    Metric("n_matches", "matches", "matches passing the ratio test 0.7 (survey 5)", digits=1),
+    Metric("n_correct", "matches", "number of correct matches, IoU > 0.5 (survey 4.2)", digits=1,
            interval=True),
-    Metric("precision", _MATCH, "share", "correct / all matches, pooled over views: the survey's ratio (4.2)",
+    Metric("precision", "share", "correct / all matches, pooled over views: the survey's ratio (4.2)",
            aggregation="ratio", of=("n_correct", "n_matches"), interval=True),
-    Metric("precision_per_view", _MATCH, "share", "mean of the views' correct / all matches (views with matches)",
+    Metric("precision_per_view", "share", "mean of the views' correct / all matches (views with matches)",
            per_view=lambda rows: rows["precision"], interval=True),
-    Metric("pose_success", _POSE, "share", "success rate: position error < 30 px, orientation < 1.5 deg (4.3)",
+    Metric("pose_success", "share", "success rate: position error < 30 px, orientation < 1.5 deg (4.3)",
            aggregation="rate", interval=True),
-    Metric("position_error", _POSE, "px", "distance of the estimated to the true position (survey 4.3)", digits=1,
+    Metric("position_error", "px", "distance of the estimated to the true position (survey 4.3)", digits=1,
            interval=True),
-    Metric("orientation_error", _POSE, "deg", "orientation error of the estimated pose (survey 4.3)",
+    Metric("orientation_error", "deg", "orientation error of the estimated pose (survey 4.3)",
            interval=True),
-    Metric("n_inliers", _POSE, "matches", "RANSAC inliers of the estimated pose (survey 5)", digits=1),
-    Metric("t_detect", _DET, "s", "detection and selection time of the test image (survey Table 3)", digits=3),
-    Metric("t_describe", _MATCH, "s", "description time of reference and test image (not in the survey; a call that "
+    Metric("n_inliers", "matches", "RANSAC inliers of the estimated pose (survey 5)", digits=1),
+    Metric("t_detect", "s", "detection and selection time of the test image (survey Table 3)", digits=3),
+    Metric("t_describe", "s", "description time of reference and test image (not in the survey; a call that "
            "described several detectors' keypoints, DAISY's, counts its equal share)", digits=3),
-    Metric("t_match", _MATCH, "s", "matching time (not in the survey)", digits=3),
-    Metric("t_pose", _POSE, "s", "pose estimation time (not in the survey)", digits=3),
-    # Absolute localization against a map (the survey's outlook; Micro-GPS, Zhang et al. ICRA 2019).
-    Metric("localized", _LOC, "share", "queries whose pose was accepted (experiment.min_inliers, min_inlier_ratio)",
-           aggregation="rate"),
-    Metric("localization_success", _LOC, "share", "in-map queries with ground truth localized within 30 px and "
-           "1.5 deg in map px (Micro-GPS' rule)", aggregation="rate", interval=True),
-    Metric("false_localization", _LOC, "share", "queries from a floor not in the map that were accepted (should "
-           "be 0)", aggregation="rate", interval=True),
-    Metric("wrong_localization", _LOC, "share", "in-map queries accepted with a pose outside 30 px / 1.5 deg",
-           aggregation="rate"),
-    Metric("success_position_error", _LOC, "px", "position error of the successful queries (map px)",
-           per_view=lambda r: r["position_error"].where(r["localization_success"] == 1), digits=2),
-    Metric("success_orientation_error", _LOC, "deg", "orientation error of the successful queries",
-           per_view=lambda r: r["orientation_error"].where(r["localization_success"] == 1), digits=3),
-    Metric("n_voted", _LOC, "matches", "matches kept by the voting step (all matches without voting)", digits=1),
-    Metric("inlier_ratio", _LOC, "share", "inliers / matches given to the estimator", reported=False),
-    Metric("t_vote", _LOC, "s", "voting time per query", digits=4, reported=False),
-    Metric("t_query", _LOC, "s", "time per query: detection, description, matching, voting, pose", digits=3,
-           interval=True),
-    Metric("t_index", _LOC, "s", "building the matcher's index of the map (once per map)", digits=3,
-           reported=False),
-    Metric("map_features", _LOC, "features", "features in the map", digits=0),
-    Metric("map_bytes", _LOC, "bytes", "memory of the map's features: descriptors, positions, orientations, ids",
-           digits=0),
-    Metric("map_bytes_per_m2", _LOC, "bytes/m2", "map memory per m2 of floor covered (data set's px/mm)",
-           digits=0),
-    Metric("map_build_s", _LOC, "s", "map build time: detection and description of every mapping image",
-           digits=2),
+    Metric("t_match", "s", "matching time (not in the survey)", digits=3),
+    Metric("t_pose", "s", "pose estimation time (not in the survey)", digits=3),
 )
 
 
 def _check(metric: Metric) -> Metric:
     problems = []
-    if metric.since not in EXPERIMENT_ROWS and metric.since not in STANDALONE:
-        problems.append(f"experiment {metric.since!r} is not one of {', '.join([*EXPERIMENT_ROWS, *STANDALONE])}")
     if metric.aggregation not in AGGREGATIONS:
         problems.append(f"aggregation {metric.aggregation!r} is not one of {', '.join(AGGREGATIONS)}")
     if (metric.aggregation == "ratio") != (metric.of is not None):
@@ -175,12 +121,40 @@ def _check(metric: Metric) -> Metric:
 
 for _metric in METRICS.values():
     _check(_metric)
-if not {*HEADLINE.values(), *(m for names in CURVES.values() for m in names)} <= set(METRICS):
-    raise GtsweepError(f"HEADLINE and CURVES in {SCHEMA_FILE} must name declared metrics")
+#: The metrics the evaluation computes (:mod:`gtsweep.evaluation.evaluate`), declared above; a kind's own metrics
+#: are declared with its rows (:class:`Rows`).
+EVALUATED = tuple(METRICS)
+
+
+@dataclass(frozen=True)
+class Rows:
+    """What an experiment kind's per-view rows hold, as its entry declares it (``gtsweep.experiments``): its
+    metrics (names declared here, or its own :class:`Metric` entries), the headline metric the terminal summary
+    and the multirun summary show, the curves drawn against the transform strength, its own identity columns
+    (``meta``), and ``step``: a meta column each view is repeated once per value of (each query against every
+    map size), whose largest value the cell's aggregates (and intervals) are taken at, so each view counts once
+    (every value is in ``by_<step>``). ``recognizes(summary)``: a summary written before cells recorded their
+    kind is of this kind (None: never)."""
+
+    metrics: tuple[Metric | str, ...]
+    headline: str
+    curves: tuple[str, ...] = ()
+    meta: tuple[str, ...] = ()
+    step: str | None = None
+    recognizes: Callable[[Mapping], bool] | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(m if isinstance(m, str) else m.name for m in self.metrics)
+
+
+#: The rows of every experiment kind, by its name: filled by the experiment registry (``gtsweep.experiments``) as
+#: each kind is registered, and read by the engine and the report, which name no kind.
+ROWS: dict[str, Rows] = {}
 
 
 def register(metric: Metric) -> None:
-    """Declare one more metric (a plugin's, or a test's); its name must be new."""
+    """Declare one more metric (a kind's, or a test's); its name must be new."""
     if metric.name in METRICS:
         raise GtsweepError(f"metric '{metric.name}' is already declared in {SCHEMA_FILE}")
     METRICS[_check(metric).name] = metric
@@ -190,45 +164,68 @@ def unregister(name: str) -> None:
     METRICS.pop(name, None)
 
 
-def add_experiment(name: str, headline_metric: str, *metrics: Metric, curves: tuple[str, ...] = ()) -> None:
-    """Declare a new experiment kind's rows: its own ``metrics`` (``since=name``), the headline the terminal
-    summary shows and the metrics drawn against strength. A plug-in's experiment kind calls this once."""
-    if name in EXPERIMENT_ROWS or name in STANDALONE:
-        raise GtsweepError(f"experiment '{name}' is already declared in {SCHEMA_FILE}")
-    STANDALONE.add(name)
-    for metric in metrics:
+def declare_rows(kind: str, rows: Rows) -> None:
+    """Declare the rows of experiment kind ``kind``: its own metrics, meta columns and step join the schema. The
+    experiment registry calls this once per kind (a plug-in's too)."""
+    if kind in ROWS:
+        raise GtsweepError(f"the rows of experiment '{kind}' are already declared")
+    own = [m for m in rows.metrics if not isinstance(m, str) and METRICS.get(m.name) is not m]
+    for metric in own:
         register(metric)
-    HEADLINE[name], CURVES[name] = headline_metric, curves
-    if not {headline_metric, *curves} <= set(METRICS):
-        remove_experiment(name)
-        raise GtsweepError(f"experiment '{name}': its headline and curves must name declared metrics")
+    undeclared = [name for name in (*rows.names, rows.headline, *rows.curves) if name not in METRICS]
+    if undeclared:
+        for metric in own:
+            unregister(metric.name)
+        raise GtsweepError(f"experiment '{kind}': metric(s) {', '.join(undeclared)} not declared in {SCHEMA_FILE}")
+    META.extend(c for c in (*rows.meta, *([rows.step] if rows.step else [])) if c not in META)
+    if rows.step and rows.step not in STEP_KEYS:
+        STEP_KEYS.append(rows.step)
+    ROWS[kind] = rows
 
 
-def remove_experiment(name: str) -> None:
-    """Undo :func:`add_experiment` (a test's clean-up)."""
-    for metric in [m for m in METRICS.values() if m.since == name]:
-        unregister(metric.name)
-    STANDALONE.discard(name)
-    HEADLINE.pop(name, None)
-    CURVES.pop(name, None)
+def forget_rows(kind: str) -> None:
+    """Undo :func:`declare_rows` (a plug-in's entry removed, e.g. after a test)."""
+    rows = ROWS.pop(kind, None)
+    if rows is None:
+        return
+    for metric in rows.metrics:
+        if not isinstance(metric, str) and not any(metric.name in other.names for other in ROWS.values()):
+            unregister(metric.name)
+
+
+def rows_of(experiment: str) -> Rows:
+    """The declared rows of an experiment kind; one line for a kind no entry has registered."""
+    try:
+        return ROWS[experiment]
+    except (KeyError, TypeError):
+        raise GtsweepError(f"experiment kind {experiment!r} is not registered (registered: {', '.join(ROWS)}); "
+                           "its entry registers it (gtsweep.experiments)") from None
 
 
 def metrics_of(experiment: str | None) -> list[Metric]:
     """The metrics of an experiment's rows in schema order (every metric for None)."""
-    return [m for m in METRICS.values() if experiment is None or experiment in m.experiments]
+    if experiment is None:
+        return list(METRICS.values())
+    names = set(rows_of(experiment).names)
+    return [m for m in METRICS.values() if m.name in names]
 
 
 def headline(experiment: str) -> str:
-    return HEADLINE[experiment]
+    return rows_of(experiment).headline
 
 
-def experiment_of(summary: Mapping) -> str:
-    """A cell summary's experiment; summaries written before it was recorded: guessed from methods and metrics."""
-    if summary.get("experiment") in EXPERIMENT_ROWS or summary.get("experiment") in STANDALONE:
+def curves(experiment: str) -> tuple[str, ...]:
+    """The metrics of an experiment drawn against the transform strength (report plots, MLflow figures)."""
+    return rows_of(experiment).curves
+
+
+def experiment_of(summary: Mapping) -> str | None:
+    """A cell summary's experiment kind: the one it recorded, else the first kind that recognizes it (a summary
+    written before cells recorded their kind)."""
+    if summary.get("experiment") in ROWS:
         return summary["experiment"]
-    if not (summary.get("methods") or {}).get("descriptor"):
-        return "detection"
-    return "pose" if headline("pose") in (summary.get("metrics") or {}) else "matching"
+    return next((kind for kind, rows in ROWS.items() if rows.recognizes and rows.recognizes(summary)),
+                summary.get("experiment"))
 
 
 def series_name(metric: str, step: str) -> str:
@@ -278,9 +275,9 @@ def _numbers(values: pd.Series) -> pd.Series:
 
 
 def headline_rows(rows: pd.DataFrame, experiment: str | None) -> pd.DataFrame:
-    """The rows a cell's aggregates are taken over: all, or those of the largest :data:`HEADLINE_STEP` value per
+    """The rows a cell's aggregates are taken over: all, or those of the largest :attr:`Rows.step` value per
     texture (each floor's own largest map: a real data set's floors have maps of different sizes)."""
-    step = HEADLINE_STEP.get(experiment)
+    step = ROWS[experiment].step if experiment in ROWS else None
     if step is None or step not in rows or not rows[step].notna().any():
         return rows
     values = _numbers(rows[step])

@@ -91,7 +91,7 @@ def strength_table(summaries: list[dict], views: Views | None, name: str = "synt
         return None
     by_cell = {s.get("key"): s for s in summaries}
     metrics = [m for m in schema.ordered({m for s in summaries if s.get("key") in set(part["key"])
-                                          for m in schema.CURVES[schema.experiment_of(s)]})
+                                          for m in schema.curves(schema.experiment_of(s))})
                if any(schema.aggregable(schema.METRICS[m], schema.with_derived(views.get(k, pd.DataFrame())))
                       for k in part["key"])]
     table = Table(name, f"Synthetic transforms per type and strength{note}: ours [95 % interval]", pd.DataFrame())

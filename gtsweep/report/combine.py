@@ -68,10 +68,10 @@ def _job_order(name: str):
 ReportWriter = Callable[[list[dict], Path, dict, Scale], list[Path]]
 
 
-def combine(sweep_dir: str | Path, report_of: Callable[[list[dict]], ReportWriter], alpha: float = ALPHA) -> list[Path]:
-    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written. ``report_of(all the
-    jobs' summaries)`` gives the report of their experiment kind (its entry's). The report's intervals come from
-    every repeat's per-view rows (each repeat a stratum of its own, images matched across)."""
+def combine(sweep_dir: str | Path, write: ReportWriter, alpha: float = ALPHA) -> list[Path]:
+    """Write ``<sweep dir>/combined/`` from the jobs' result files; returns the files written. ``write``: the
+    report of the jobs' experiment kind (its entry's). The report's intervals come from every repeat's per-view
+    rows (each repeat a stratum of its own, images matched across)."""
     sweep_dir = Path(sweep_dir)
     jobs = jobs_of(sweep_dir)
     if not jobs:
@@ -87,7 +87,6 @@ def combine(sweep_dir: str | Path, report_of: Callable[[list[dict]], ReportWrite
     files.append(_write(out / "summary.csv", summary.to_csv(index=False)))
     headlines = {schema.headline(schema.experiment_of(s)) for summaries in by_job.values() for s in summaries}
     files.append(_write(out / "summary.md", headline_markdown(summary, jobs, headlines)))
-    write = report_of([s for summaries in by_job.values() for s in summaries])
     settings = sorted({job["setting"] for job in jobs})
     for setting in settings:
         cells, views = _repeats(jobs, by_job, setting)

@@ -24,6 +24,9 @@ from gtsweep.report.labels import STRENGTH_AXIS, label  # noqa: E402
 from gtsweep.report.samples import Views, estimate  # noqa: E402
 from gtsweep.report.tables import paper, paper_order  # noqa: E402
 
+#: The survey's success rate of the estimated poses (Tables 4-7): its heat maps, its plots' file name "success".
+SUCCESS = "pose_success"
+
 
 def _series_name(methods: dict) -> str:
     parts = [label(methods["detector"])]
@@ -94,7 +97,7 @@ def _bound(ax, metric: str) -> None:
 
 def _stem(metric: str) -> str:
     """File name stem of a metric's plot; the pose headline keeps the survey's word, "success"."""
-    return "success" if metric == schema.headline("pose") else metric
+    return "success" if metric == SUCCESS else metric
 
 
 def _by_headline(summaries: list[dict], step_key: str) -> dict[str, list[dict]]:
@@ -111,7 +114,7 @@ def plot_strength_curves(summaries: list[dict], out_dir: Path, views: Views | No
     groups = defaultdict(list)
     for s in summaries:
         if s["status"] == "ok" and s.get("by_strength"):
-            for metric in schema.CURVES[schema.experiment_of(s)]:
+            for metric in schema.curves(schema.experiment_of(s)):
                 groups[(s["methods"]["transform"], metric)].append(s)
     files = []
     for (transform, metric), cells in sorted(groups.items()):
@@ -150,11 +153,11 @@ def plot_success_heatmaps(summaries: list[dict], out_dir: Path) -> list[Path]:
     """Detector x descriptor heat map of the pose headline (success) per pair kind (survey Tables 4 and 5): each
     cell its value and 95 % interval, NA (grey) where the pairing cannot be evaluated; rows and columns in the
     survey table's order, the figure sized to its cells."""
-    metric = schema.headline("pose")
+    metric = SUCCESS
     files = []
     for transform in ("incremental", "absolute"):
         cells = [s for s in summaries if s["methods"]["transform"] == transform and s["methods"].get("descriptor")
-                 and schema.experiment_of(s) == "pose" and not s.get("by_reference_count")]
+                 and schema.headline(schema.experiment_of(s)) == SUCCESS and not s.get("by_reference_count")]
         if not cells:
             continue
         theirs = paper(f"table{4 if transform == 'incremental' else 5}_success_{transform}.csv")  # its order

@@ -57,8 +57,8 @@ def outcomes_by_rotation(summaries: list[dict], views: Views | None) -> dict[str
     for summary in summaries:
         methods = summary.get("methods") or {}
         frame = (views or {}).get(summary.get("key"))
-        if (summary.get("experiment") != "pose" or methods.get("transform") != TRANSFORM or summary.get("status")
-                != "ok" or frame is None or "rotation" not in frame or "pose_success" not in frame):
+        if (methods.get("transform") != TRANSFORM or summary.get("status") != "ok" or frame is None
+                or "rotation" not in frame or "pose_success" not in frame):
             continue
         outcomes[method_label(methods)] = bin_outcomes(frame)
     return outcomes

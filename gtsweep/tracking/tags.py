@@ -68,18 +68,18 @@ def cell_names(cells: Iterable, several_selectors: bool) -> dict[str, str]:
     """A short run name per cell key: ``sift·brief·inc`` (the selector too when the grid has several, or no
     descriptor; the matcher and the estimator when the grid has several, ``sift·brief·inc·flann·magsac``); the full
     key stays in the ``gtsweep.cell`` tag."""
-    cells = list(cells)
-    several = [k for k in ("matcher", "estimator") if len({getattr(c, k, None) for c in cells}) > 1]
+    methods = {cell.key: cell.methods for cell in cells}
+    several = [k for k in ("matcher", "estimator") if len({m.get(k) for m in methods.values()}) > 1]
     names = {}
-    for cell in cells:
-        parts = [cell.detector]
-        if several_selectors or cell.descriptor is None:
-            parts.append(cell.selector)
-        if cell.descriptor is not None:
-            parts.append(cell.descriptor)
-        parts.append(TRANSFORM_SHORT.get(cell.transform, cell.transform))
-        parts += [getattr(cell, k) for k in several if getattr(cell, k) is not None]
-        names[cell.key] = SEPARATOR.join(parts)
+    for key, m in methods.items():
+        parts = [m["detector"]]
+        if several_selectors or m.get("descriptor") is None:
+            parts.append(m["selector"])
+        if m.get("descriptor") is not None:
+            parts.append(m["descriptor"])
+        parts.append(TRANSFORM_SHORT.get(m["transform"], m["transform"]))
+        parts += [m[k] for k in several if m.get(k) is not None]
+        names[key] = SEPARATOR.join(parts)
     return names
 
 

@@ -29,8 +29,14 @@ VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 TRAINING_VIEW = "workflowType=machine_learning"
 #: The method and data-set params shown as columns.
 PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset")
-#: The headline metric of each experiment, and precision (the survey's other main number), as columns.
-HEADLINE_METRICS = tuple(dict.fromkeys([*(schema.HEADLINE[e] for e in schema.EXPERIMENT_ROWS), "precision"]))
+#: Shown as a column besides each experiment kind's headline: the survey's other main number.
+SECOND_METRIC = "precision"
+
+
+def headline_metrics() -> tuple[str, ...]:
+    """The headline metric of each registered experiment kind (:data:`gtsweep.evaluation.schema.ROWS`), and
+    precision, as columns."""
+    return tuple(dict.fromkeys([*(rows.headline for rows in schema.ROWS.values()), SECOND_METRIC]))
 
 
 def _column(kind: str, name: str) -> str:
@@ -44,7 +50,7 @@ def pairings_state(cell_tag: str) -> dict:
         "orderByKey": "attributes.start_time",
         "orderByAsc": False,
         "selectedColumns": [*(_column("params", p) for p in PAIRING),
-                            *(_column("metrics", m) for m in HEADLINE_METRICS)],
+                            *(_column("metrics", m) for m in headline_metrics())],
         "groupBy": {"aggregateFunction": "average", "groupByKeys": [{"mode": "tag", "groupByData": PAIRING_TAG}]},
         "runsHiddenMode": "SHOW_ALL",
         # the chart view: MLflow's generated charts, in sections ordered headline first (kept as given when

@@ -17,11 +17,12 @@ from typing import Mapping
 
 from gtsweep.core.config import plain
 from gtsweep.core.errors import BadInput
-from gtsweep.core.ranges import Choice, Range, check_all
+from gtsweep.core.ranges import check_all
 from gtsweep.datasets.core import read_gray
 from gtsweep.datasets.mapping import check as check_data_options
 from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.experiments.localization import tasks as loctasks
+from gtsweep.experiments.localization.settings import SETTINGS
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.grid import (
     MethodCell,
@@ -39,15 +40,6 @@ from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.match import applicability as matcher_applicability
 
 log = logging.getLogger(__name__)
-SETTINGS = {
-    "experiment.voting": Choice((True, False)),
-    "experiment.vote_cell": Range(0, None, low_open=True),
-    "experiment.map_dedupe": Choice((True, False)),
-    "experiment.min_inliers": Range(2, None, integer=True),
-    "experiment.min_inlier_ratio": Range(0, 1),
-    "experiment.max_position_error": Range(0, None, low_open=True),
-    "experiment.max_orientation_error": Range(0, 180, low_open=True),
-}
 
 
 @dataclass(frozen=True)
@@ -85,7 +77,7 @@ class LocGrid(MethodGrid):
 def build_localization_grid(cfg: Mapping) -> LocGrid:
     """The localization cells of ``cfg``; its experiment's settings and methods checked first (one line on bad
     input; the run settings are checked where the job is composed)."""
-    check_all({"experiment": plain(cfg.get("experiment")) or {}}, SETTINGS)
+    check_all(plain(cfg.get("experiment")) or {}, SETTINGS, prefix="experiment.")
     check_data_options(plain(cfg.get("experiment")) or {})
     grid = LocGrid(plain(cfg.get("experiment")) or {}, resolve_group(cfg, "detector"),
                    resolve_group(cfg, "selector"), resolve_group(cfg, "descriptor"),
