@@ -17,6 +17,10 @@ def test_the_pose_objective_reads_the_matcher_and_estimator_groups():
     changed = read_settings(compose_config(["experiment=optimize", "matcher.bf_ratio.params.ratio=0.8",
                                             "estimator.ransac.params.iterations=500"]))
     assert changed["ratio"] == 0.8 and changed["pose"]["iterations"] == 500
+    # a trial builds its matcher and estimator from the groups' parameters, as a sweep's pairing task does
+    methods = changed["methods"]
+    assert list(methods["matchers"]) == ["bf_ratio"] and methods["matchers"]["bf_ratio"]["ratio"] == 0.8
+    assert list(methods["estimators"]) == ["ransac"] and methods["estimators"]["ransac"]["iterations"] == 500
 
 
 def test_the_old_experiment_keys_name_their_new_place(capsys):

@@ -71,8 +71,8 @@ def forget_notes() -> None:
 
 def check_job(cfg, overrides, found: Configs) -> None:
     """What Hydra's composition does not check: a single-option group given a list, a method this install cannot
-    run, factories and plug-ins (:func:`gtsweep.core.factories.check_composed`), the run settings' and its experiment kind's ranges, the
-    device."""
+    run, factories and plug-ins (:func:`gtsweep.core.factories.check_composed`), the ranges of the run settings and
+    of its experiment kind's, the device."""
     check_single_groups(overrides, found)
     require_available(*(REGISTRIES[g][n] for g in GRID_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
     check_composed(cfg, overrides)

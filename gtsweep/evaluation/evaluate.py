@@ -148,30 +148,17 @@ def pose_metrics(view: ViewPair, described: Described, matches, estimator, cfg: 
     }
 
 
-def survey_methods(experiment: dict):
-    """The survey's matcher and estimator, ``(bf_ratio, ransac)``, built with the settings an experiment dict may
-    still carry (the optimiser's ``ratio``, ``mutual`` and ``pose.{model,iterations,threshold}``)."""
-    matcher = {k: experiment[k] for k in ("ratio", "mutual") if k in experiment}
-    pose = experiment.get("pose") or {}
-    estimator = {k: pose[k] for k in ("model", "iterations", "threshold") if k in pose}
-    return MATCHERS.get("bf_ratio").build(matcher), ESTIMATORS.get("ransac").build(estimator)
-
-
-#: A (matcher, estimator) combination; the estimator is None outside the pose experiment.
+#: A (matcher, estimator) combination; the estimator is None where no pose is estimated.
 Combination = tuple[str, "str | None"]
 
 
-def build_methods(methods: dict | None, experiment: dict) -> tuple[dict, dict]:
-    """The built matchers and estimators of ``methods`` (see :func:`pair_shard`), ``{name: built}``; the estimators
-    are ``{None: None}`` outside the pose experiment."""
-    if methods is None:
-        matcher, estimator = survey_methods(experiment)
-        matchers, estimators = {"bf_ratio": matcher}, {"ransac": estimator}
-    else:
-        matchers = {name: MATCHERS.get(name).build(params) for name, params in methods["matchers"].items()}
-        estimators = {name: ESTIMATORS.get(name).build(params)
-                      for name, params in (methods.get("estimators") or {}).items()}
-    return matchers, (estimators if experiment.get("name") == "pose" else {None: None})
+def build_methods(methods: dict) -> tuple[dict, dict]:
+    """The built matchers and estimators of ``methods`` (``{"matchers": {name: params}, "estimators": {name:
+    params}}``), ``{name: built}``; the estimators are ``{None: None}`` when it names none (no pose estimated)."""
+    matchers = {name: MATCHERS.get(name).build(params) for name, params in methods["matchers"].items()}
+    estimators = {name: ESTIMATORS.get(name).build(params)
+                  for name, params in (methods.get("estimators") or {}).items()}
+    return matchers, estimators or {None: None}
 
 
 def detect_views(detect, shard: dict, transform: str, transform_cfg: dict, method: dict, experiment: dict,
@@ -196,10 +183,11 @@ def detect_views(detect, shard: dict, transform: str, transform_cfg: dict, metho
 
 
 def pair_views(shard: dict, transform: str, transform_cfg: dict, keypoints: list, detection_rows: list[dict],
-               detector: str, descriptor: str, descriptor_params: dict, experiment: dict, seed: int) -> list[dict]:
-    """A row of matching (and pose) metrics per view of a shard and reference count with the survey's matcher and
-    estimator built from ``experiment`` (the optimiser's settings); raises on failure."""
-    matchers, estimators = build_methods(None, experiment)
+               detector: str, descriptor: str, descriptor_params: dict, experiment: dict, seed: int,
+               methods: dict) -> list[dict]:
+    """A row of matching (and pose) metrics per view of a shard and reference count with one matcher and estimator
+    (``methods``, as :func:`build_methods` takes them); raises on failure."""
+    matchers, estimators = build_methods(methods)
     (result,) = evaluate_views(shard, transform, transform_cfg, keypoints, detection_rows, detector, descriptor,
                                descriptor_params, experiment, seed, matchers, estimators).values()
     if isinstance(result, Exception):

@@ -40,7 +40,7 @@ def evaluate(shards: dict, job: dict) -> dict:
 
     ``shards``: :func:`gtsweep.orchestration.shards.load_shards`'s. ``job``: objective, detector, detector_params,
     descriptor, descriptor_params, selector, selector_params, transforms, settings (min_keypoints, iou_threshold,
-    ratio, mutual, pose), seed and cache_dir.
+    pose: the success thresholds, methods: the matcher and estimator with their parameters), seed and cache_dir.
     """
     start = time.perf_counter()
     try:
@@ -59,8 +59,7 @@ def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
     settings, seed = job["settings"], job["seed"]
     pose = job["objective"] == "pose_success"
     cache = KeypointCache(job.get("cache_dir") if pose else None)
-    experiment = {"name": "pose", "ratio": settings.get("ratio", 0.7), "mutual": bool(settings.get("mutual")),
-                  "iou_threshold": settings["iou_threshold"], "min_keypoints": settings["min_keypoints"],
+    experiment = {"name": "pose", "iou_threshold": settings["iou_threshold"], "min_keypoints": settings["min_keypoints"],
                   "pose": settings.get("pose"), "budget_per_mpx": settings.get("budget_per_mpx")}
     method = {"detector": job["detector"], "detector_cfg": {"params": job["detector_params"]},
               "selector": job["selector"], "selector_cfg": {"params": job["selector_params"]}}
@@ -71,8 +70,8 @@ def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
             keypoints, found = detect_views(partial(detect_cached, cache), shard, name, transform_cfg, method,
                                             experiment, seed)
             if pose:
-                found = pair_views(shard, name, transform_cfg, keypoints, found, job["detector"],
-                                         job["descriptor"], job["descriptor_params"], experiment, seed)
+                found = pair_views(shard, name, transform_cfg, keypoints, found, job["detector"], job["descriptor"],
+                                   job["descriptor_params"], experiment, seed, settings["methods"])
             rows[name] += [{"repeatability": row["repeatability"], "few_keypoints": row["few_keypoints"],
                             "n_keypoints": float(row["n_kp_test"]), **{k: row[k] for k in PAIRING_KEYS if pose}}
                            for row in found]

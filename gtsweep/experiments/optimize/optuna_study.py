@@ -118,7 +118,7 @@ def trial_job(target: Target, settings: Mapping, values: Mapping, seed: int, cac
             "descriptor": target.descriptor, "descriptor_params": tuned if target.group == "descriptor" else {},
             "selector": settings["selector"]["name"], "selector_params": dict(settings["selector"].get("params") or {}),
             "transforms": job_transforms(settings), "seed": seed, "cache_dir": cache_dir, "declared": target.declared,
-            "settings": {k: settings.get(k) for k in ("min_keypoints", "iou_threshold", "ratio", "mutual", "pose")}}
+            "settings": {k: settings.get(k) for k in ("min_keypoints", "iou_threshold", "pose", "methods")}}
 
 
 def optimise(study, target: Target, settings: Mapping, shards, executor, seed: int, cache_dir: str | None,

@@ -54,8 +54,10 @@ def read_settings(cfg: Mapping) -> dict:
 
 def survey_method_settings(cfg: Mapping, judging: Mapping) -> dict:
     """The pose objective's matcher and estimator, the survey's (``bf_ratio``, ``ransac``), with the parameters of
-    the matcher and estimator groups (``matcher.bf_ratio.params.ratio=0.8``), as the sweep takes them: ``ratio``,
-    ``mutual`` and ``pose`` (model, iterations, threshold, and ``judging``'s success thresholds)."""
+    the matcher and estimator groups (``matcher.bf_ratio.params.ratio=0.8``), as the sweep takes them: ``methods``
+    (``{"matchers": {name: params}, "estimators": {name: params}}``, what a trial builds), ``pose`` (``judging``'s
+    success thresholds), and for the study's name ``ratio``, ``mutual`` and the estimator's model, iterations and
+    threshold in ``pose``."""
     from gtsweep.stages.match import MATCHERS
     from gtsweep.stages.pose import ESTIMATORS
 
@@ -65,7 +67,8 @@ def survey_method_settings(cfg: Mapping, judging: Mapping) -> dict:
 
     matcher, estimator = params("matcher", "bf_ratio", MATCHERS), params("estimator", "ransac", ESTIMATORS)
     pose = {k: estimator[k] for k in ("model", "iterations", "threshold")}
-    return {"ratio": matcher["ratio"], "mutual": matcher["mutual"], "pose": {**pose, **judging}}
+    return {"ratio": matcher["ratio"], "mutual": matcher["mutual"], "pose": {**pose, **judging},
+            "methods": {"matchers": {"bf_ratio": matcher}, "estimators": {"ransac": estimator}}}
 
 
 def job_transforms(settings: Mapping) -> dict:

@@ -80,7 +80,7 @@ def pair_shard_members(shard: dict, transform: str, transform_cfg: dict, detecto
     try:
         declare(declared or {})
         with devices.using((methods or {}).get("device")):
-            matchers, estimators = build_methods(methods, experiment)
+            matchers, estimators = build_methods(methods)
             outcomes = evaluate_members(shard, transform, transform_cfg, members, descriptor, descriptor_params,
                                         experiment, seed, matchers, estimators, dense, together) if members else []
     except Exception as e:
