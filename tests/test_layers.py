@@ -1,11 +1,12 @@
 """The house rules, checked from the source: layers import only downward, no import cycle, no module over ~400 lines.
 
-Layers, lowest first (README, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` < ``orchestration`` <
-``tracking`` < ``report`` < ``reproduction`` < ``wings`` < ``experiments`` < ``cli``, where the wings are the experiment
-kinds' packages (``gtsweep/experiments/<kind>/``: pairs, localization, optimize), each below the registry that
-names them (``gtsweep/experiments/*.py``) and none importing another; a package's ``__main__`` is an entry point
-(nothing imports it) and may use any layer, and so are the top-level commands of :data:`ENTRY_POINTS`. The science (core, stages, evaluation, datasets) never imports
-the orchestration, tracking, report, optimisation or command-line layers. Lazy (function-level) imports count.
+Layers, lowest first (docs/architecture.md, "Layout"): ``core`` < ``stages`` < ``evaluation`` < ``datasets`` <
+``orchestration`` < ``tracking`` < ``report`` < ``reproduction`` < ``wings`` < ``experiments`` < ``cli``, where the
+wings are the experiment kinds' packages (``gtsweep/experiments/<kind>/``: pairs, localization, optimize), each
+below the registry that names them (``gtsweep/experiments/*.py``) and none importing another; a package's
+``__main__`` is an entry point (nothing imports it) and may use any layer, and so are the top-level commands of
+:data:`ENTRY_POINTS`. The science (core, stages, evaluation, datasets) never imports the orchestration, tracking,
+report, experiment or command-line layers. Lazy (function-level) imports count.
 """
 from __future__ import annotations
 

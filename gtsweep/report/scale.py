@@ -81,9 +81,16 @@ def scale_from_config(cfg: Mapping | None) -> Scale:
         scaled = [budget.scaled(p, min_keypoints, experiment, (view[1], view[0])) for p in selectors]
         selectors, min_keypoints = [p for p, _ in scaled], (scaled[0][1] if scaled else min_keypoints)
     budgets = sorted({int(p["n"]) for p in selectors}) if "selector" in cfg else [SURVEY_BUDGET]
-    radius = (experiment.get("pose") or {}).get("max_position_error") or experiment.get("max_position_error")
+    radius = _setting(experiment, "max_position_error")
     return Scale(float(ppm) if known else MICROGPS_PX_PER_MM, known, view, budgets, min_keypoints,
                  float(radius or SURVEY_RADIUS_PX))
+
+
+def _setting(experiment: Mapping, key: str):
+    """An experiment setting wherever its kind keeps it: at the top or in one of its sections (a pair experiment's
+    success thresholds are ``experiment.pose.*``, localization's at the top)."""
+    sections = [experiment, *(v for v in experiment.values() if isinstance(v, Mapping))]
+    return next((section[key] for section in sections if section.get(key) is not None), None)
 
 
 def load_scale(source: str | Path) -> Scale:

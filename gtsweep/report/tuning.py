@@ -1,7 +1,8 @@
 """The detector parameters a reproduction used, read from the headers of the tuned files (``conf/detector/tuned``):
 per detector the study's trials and why it stopped, the defaults' and the tuned parameters' views below N keypoints
 and repeatability, the selector, and the tuned values (survey section 5: "parameter optimization" on 3 images
-per texture kept apart from the test images). The headers are written by :mod:`gtsweep.experiments.optimize.tuned_files`, so
+per texture kept apart from the test images). The headers are written by
+:mod:`gtsweep.experiments.optimize.tuned_files`, so
 the table needs no study database: a fresh clone has none.
 """
 from __future__ import annotations

@@ -21,7 +21,8 @@ STEP = "strength"
 def curve_metrics(summary: Mapping, experiment: str) -> list[str]:
     """The experiment's curve metrics (:func:`gtsweep.evaluation.schema.curves`) that the cell has per strength."""
     by_strength = summary.get(f"by_{STEP}") or {}
-    return [m for m in (schema.curves(experiment) if experiment in schema.ROWS else ()) if any(m in values for values in by_strength.values())]
+    curves = schema.curves(experiment) if experiment in schema.ROWS else ()
+    return [m for m in curves if any(m in values for values in by_strength.values())]
 
 
 def axis_label(metric: str) -> str:

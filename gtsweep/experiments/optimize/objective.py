@@ -59,7 +59,7 @@ def _rows(shards: dict, job: dict) -> dict[str, list[dict]]:
     settings, seed = job["settings"], job["seed"]
     pose = job["objective"] == "pose_success"
     cache = KeypointCache(job.get("cache_dir") if pose else None)
-    experiment = {"name": "pose", "iou_threshold": settings["iou_threshold"], "min_keypoints": settings["min_keypoints"],
+    experiment = {"iou_threshold": settings["iou_threshold"], "min_keypoints": settings["min_keypoints"],
                   "pose": settings.get("pose"), "budget_per_mpx": settings.get("budget_per_mpx")}
     method = {"detector": job["detector"], "detector_cfg": {"params": job["detector_params"]},
               "selector": job["selector"], "selector_cfg": {"params": job["selector_params"]}}
