@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import logging
-from types import SimpleNamespace
 
 import pandas as pd
 import pytest
@@ -15,6 +14,7 @@ from gtsweep.orchestration import dashboard, executor
 from gtsweep.experiments.kinds import combine_multirun as combine
 from gtsweep.report.combine import mean_summary
 from gtsweep.report.tables import sample_note
+from gtsweep.experiments.pairs.grid import Cell
 from gtsweep.tracking.tags import cell_names, overrides_name
 
 
@@ -30,10 +30,7 @@ def test_ray_options_hide_rays_warnings_and_the_dashboard_unless_asked(monkeypat
 
 
 def test_run_names_fit_the_name_column():
-    cell = SimpleNamespace
-    cells = [cell(key="sift__nms__brief__incremental", detector="sift", selector="nms", descriptor="brief",
-                  transform="incremental"),
-             cell(key="orb__anms__-__rotation", detector="orb", selector="anms", descriptor=None, transform="rotation")]
+    cells = [Cell("sift", "nms", "brief", "incremental"), Cell("orb", "anms", None, "rotation")]
     assert cell_names(cells, several_selectors=False) == {"sift__nms__brief__incremental": "sift·brief·inc",
                                                           "orb__anms__-__rotation": "orb·anms·rot"}
     assert cell_names(cells[:1], several_selectors=True) == {"sift__nms__brief__incremental": "sift·nms·brief·inc"}

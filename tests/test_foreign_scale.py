@@ -13,6 +13,7 @@ import pytest
 
 from gtsweep.cli.overrides import compose_config
 from gtsweep.core.errors import BadInput, GtsweepError
+from gtsweep.experiments.kinds import EXPERIMENTS
 from gtsweep.orchestration.settings import check_settings
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages import scales
@@ -195,4 +196,4 @@ def test_a_bad_option_is_one_line_before_any_work():
     assert cfg.experiment.foreign_scale == "own"
     cfg.experiment.foreign_scale = "octave 0"
     with pytest.raises(BadInput, match="experiment.foreign_scale"):
-        check_settings(cfg)
+        check_settings(cfg, EXPERIMENTS.get("pose").settings)  # the pose entry's rules
