@@ -28,9 +28,9 @@ from gtsweep.evaluation import schema
 def summarize(rows: pd.DataFrame, experiment: str | None) -> dict:
     """A cell's aggregates by the schema (:mod:`gtsweep.evaluation.schema`), overall and per step value.
 
-    Overall means over every row, except for an experiment whose rows repeat each view per step value
-    (:data:`~gtsweep.evaluation.schema.HEADLINE_STEP`, localization: one row per query and map size): there the
-    overall aggregates and intervals are those of the largest map (each query once), the others in ``by_<step>``.
+    Overall means over every row, except for an experiment whose rows repeat each view per step value (its
+    :attr:`~gtsweep.evaluation.schema.Rows.step`, e.g. one row per query and map size): there the overall aggregates
+    and intervals are those of the step's largest value (each view once), the others in ``by_<step>``.
 
     Derived metrics are computed first; a column the schema does not declare for ``experiment`` (None: any
     experiment) raises :class:`~gtsweep.core.errors.GtsweepError`. Declared metrics absent from ``rows`` are skipped.

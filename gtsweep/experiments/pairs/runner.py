@@ -38,7 +38,7 @@ class PairingJob:
 @dataclass
 class PairingGroup:
     """One pairing task for several detectors' pairing jobs of one shard (a descriptor with ``together``), and
-    each job's own :func:`~gtsweep.orchestration.tasks.pair_shard` arguments (``alone``): if the group's task
+    each job's own :func:`~gtsweep.experiments.pairs.tasks.pair_shard` arguments (``alone``): if the group's task
     crashes (its worker died, or one member's detection task did), each job runs by itself, as without groups."""
 
     pairings: list[PairingJob]

@@ -1,5 +1,5 @@
-"""Work units of a sweep, as plain functions: an executor (:mod:`gtsweep.orchestration.executor`) runs them
-in-process or as Ray tasks.
+"""The pair experiments' work units, as plain functions: an executor (:mod:`gtsweep.orchestration.executor`) runs
+them in-process or as Ray tasks.
 
 A *shard* is a few images (synthetic transforms) or image pairs (real pairs) with their pixels. One detection task
 runs per (shard, transform, detector, selector); its keypoints are reused by every descriptor's pairing task. A
@@ -10,7 +10,7 @@ computed per view (the keypoint budget, the reference counts, a failing matcher 
 combinations) is science: :mod:`gtsweep.evaluation.evaluate`; these functions only ship it.
 Keypoints travel as ``(N, 7)`` arrays (``cv2.KeyPoint`` does not pickle). A task never raises: an NA pairing
 found at run time comes back as ``{"na": reason}``; anything else that stops it (a method not available, a
-parameter OpenCV rejects, a bug) as ``{"error": reason}`` (:func:`failure`).
+parameter OpenCV rejects, a bug) as ``{"error": reason}`` (:func:`~gtsweep.orchestration.tasks.failure`).
 """
 from __future__ import annotations
 

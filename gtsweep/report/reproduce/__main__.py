@@ -2,6 +2,7 @@
 reproduction is its own package now, :mod:`gtsweep.reproduction`)."""
 import sys
 
+import gtsweep.experiments  # noqa: F401 - the experiment kinds, whose rows the reproduction's tables read
 from gtsweep.reproduction.command import main
 
 if __name__ == "__main__":
