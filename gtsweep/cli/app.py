@@ -22,10 +22,9 @@ from gtsweep.core.atomic import write_atomically
 from gtsweep.core import interrupts
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted, interruptible
-from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
+from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions, run_sweep
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
-from gtsweep.experiments.kinds import run_sweep
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import scale_from_config
 

@@ -17,36 +17,25 @@ from gtsweep.core.registry import Registry
 from gtsweep.evaluation import schema
 from gtsweep.experiments.localization.cells import LOCALIZATION
 from gtsweep.experiments.localization.metrics import LOCALIZATION as LOCALIZATION_ROWS
-from gtsweep.experiments.localization.report import format_localization, write_localization_report
+from gtsweep.experiments.localization.report import format_localization
+from gtsweep.experiments.localization.report import report as localization_report
 from gtsweep.experiments.localization.settings import SETTINGS as LOCALIZATION_SETTINGS
 from gtsweep.experiments.optimize.study_settings import SETTINGS as OPTIMIZE_SETTINGS
 from gtsweep.experiments.pairs import metrics as pair_rows
 from gtsweep.experiments.pairs import settings as pair_settings
 from gtsweep.experiments.pairs.cells import PAIRS
+from gtsweep.experiments.pairs.report import report as pair_report
 from gtsweep.experiments.pairs.summary import format_outcome
 from gtsweep.orchestration.settings import SCHEMA_GROUP, typed_settings
 from gtsweep.orchestration.skeleton import CellWork, SweepOutcome
 from gtsweep.orchestration.skeleton import run_sweep as run_cells
 from gtsweep.report.combine import combine
-from gtsweep.report.output import write_report
-from gtsweep.report.samples import Views
+from gtsweep.report.output import ReportOptions
 from gtsweep.report.scale import Scale
 from gtsweep.report.tables import ALPHA, Table
 
 #: Where an experiment's typed settings are stored in Hydra's ConfigStore (``schema/experiment/<name>``).
 SETTINGS_GROUP = f"{SCHEMA_GROUP}/experiment"
-
-
-@dataclass(frozen=True)
-class ReportOptions:
-    """What a report may use besides the cells' summaries: plots or not, the per-view rows (loaded on demand),
-    per-texture breakdowns, the paired tests' significance level, the data set's scale."""
-
-    plots: bool = True
-    views: Callable[[], Views | None] = lambda: None
-    by: str | None = None
-    alpha: float = 0.05
-    scale: Scale | None = None
 
 
 #: ``report(summaries, out_dir, options) -> (tables, files)``.
@@ -125,18 +114,8 @@ class ExperimentRegistry(Registry[Experiment]):
         schema.forget_rows(name)
 
 
-def pair_report(summaries: list[dict], out_dir: Path, options: ReportOptions):
-    """The survey's tables with intervals and ties, the per-cell and per-strength tables and the plots."""
-    return write_report(summaries, out_dir, plots=options.plots, views=options.views(), by=options.by,
-                        alpha=options.alpha, scale=options.scale)
-
-
-def localization_report(summaries: list[dict], out_dir: Path, options: ReportOptions):
-    """The localization tables and the map-size plot."""
-    return write_localization_report(summaries, out_dir, options.plots)
-
-
 def optimize_job(cfg: Mapping, output_dir: Path) -> None:
+    """``experiment=optimize``'s job (its driver, and Optuna, imported only when it runs)."""
     from gtsweep.experiments.optimize.driver import main
 
     main(cfg, output_dir)

@@ -1,5 +1,6 @@
-"""Write the report of a pair experiments' sweep (the report command, ``python -m gtsweep.report``, is
-:mod:`gtsweep.experiments.report_command`: it picks each kind's report).
+"""Write the report of a pair experiments' sweep, and what any kind's report may use (:class:`ReportOptions`); the
+report command, ``python -m gtsweep.report``, is :mod:`gtsweep.experiments.report_command`: it picks each kind's
+report.
 
 The report (:mod:`gtsweep.report.tables`) holds every survey table the cells can fill, each entry ``ours
 ±half-width (paper)`` with the entries tied with the best below it, the per-cell table, the synthetic results per
@@ -9,7 +10,9 @@ under ``by_texture/<texture>/`` (:mod:`gtsweep.report.breakdown`).
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.orchestration.results import by_variant
@@ -37,6 +40,18 @@ from gtsweep.report.tables import (
 
 #: The survey tables whose entries are pairings (a detector's selector is not a column of them).
 PAIRING_TABLES = ("table4", "table5", "table6", "table7")
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """What a report may use besides the cells' summaries: plots or not, the per-view rows (loaded on demand),
+    per-texture breakdowns, the paired tests' significance level, the data set's scale."""
+
+    plots: bool = True
+    views: Callable[[], Views | None] = lambda: None
+    by: str | None = None
+    alpha: float = ALPHA
+    scale: Scale | None = None
 
 
 def selector_note(summaries: list[dict]) -> str:

@@ -141,6 +141,11 @@ def write_localization_report(summaries: list[dict], out_dir: str | Path,
     return tables, files + (plot_map_size(summaries, out_dir) if plots else [])
 
 
+def report(summaries: list[dict], out_dir: Path, options) -> tuple[list[Table], list[Path]]:
+    """The kind's report (its entry's): the localization tables and the map-size plot."""
+    return write_localization_report(summaries, out_dir, options.plots)
+
+
 def format_localization(outcome, tables: list[Table] = ()) -> str:
     """The terminal summary: totals, then per cell success, false localization and latency."""
     statuses = pd.Series([s["status"] for s in outcome.summaries])
