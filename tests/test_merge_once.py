@@ -1,5 +1,6 @@
 """A method parameter given on the command line is merged onto the method's defaults in one place: Hydra's
-composition, onto the method's schema in the ConfigStore (:mod:`gtsweep.cli.schemas`). The command line's checks
+composition, onto the method's schema in the ConfigStore (:mod:`gtsweep.orchestration.schemas`). The command line's
+checks
 compose without gtsweep merging anything; the grid, the pre-flight build and the task receive the full parameters
 (a strict :meth:`~gtsweep.core.registry.Method.params` of full parameters adds nothing)."""
 from __future__ import annotations
@@ -8,7 +9,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from gtsweep.cli import overrides as cli
-from gtsweep.cli import schemas
+from gtsweep.orchestration import schemas
 from gtsweep.core.registry import Method
 from gtsweep.orchestration.grid import build_grid
 from gtsweep.stages.detect import DETECTORS, detect_timed

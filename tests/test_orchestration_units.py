@@ -9,7 +9,7 @@ from sweep_helpers import checked_jobs
 
 from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
-from gtsweep.cli import runs
+from gtsweep.orchestration import resume_pick as runs
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
 from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash

@@ -1,6 +1,5 @@
-"""``-m``: one MLflow run that holds the jobs' runs (opened by the sweeper once every job is checked), and at the
-end one combined table and report across the jobs (:mod:`gtsweep.report.combine`), by the Hydra callback
-``hydra.callbacks.multirun`` of conf/config.yaml."""
+"""The end of ``-m``: one combined table and report across the jobs (:mod:`gtsweep.report.combine`) and the
+multirun's MLflow run closed, by the Hydra callback ``hydra.callbacks.multirun`` of conf/config.yaml."""
 from __future__ import annotations
 
 import json
@@ -9,36 +8,7 @@ from pathlib import Path
 
 from hydra.experimental.callback import Callback
 
-MULTIRUN_RECORD = "multirun.json"
-
-
-def multirun_record(sweep_dir: Path) -> dict:
-    """What the callback recorded for the jobs: the swept keys and the MLflow run they nest under."""
-    path = Path(sweep_dir) / MULTIRUN_RECORD
-    return json.loads(path.read_text()) if path.exists() else {}
-
-
-def swept_keys(overrides) -> list[str]:
-    """The keys a multirun sweeps over (``seed=0,1``; ``detector=glob(a*)``)."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    return [o.key_or_group for o in OverridesParser.create().parse_overrides(list(overrides)) if o.is_sweep_override()]
-
-
-def open_multirun_run(config) -> None:
-    """Record the swept keys and open the multirun's MLflow run (once its jobs are checked: the sweeper)."""
-    from gtsweep.tracking.tags import overrides_name
-
-    sweep_dir = Path(config.hydra.sweep.dir)
-    overrides = list(config.hydra.overrides.task)
-    record = {**multirun_record(sweep_dir), "swept": swept_keys(overrides)}
-    if config.mlflow.enabled:
-        from gtsweep.tracking.sweep import open_multirun
-
-        swept = [o for o in overrides if o.lstrip("+").split("=")[0] in record["swept"]]
-        record["parent_run_id"] = open_multirun(config.mlflow, "multirun " + overrides_name(swept, ""),
-                                                sweep_dir, record.get("parent_run_id"))
-    (sweep_dir / MULTIRUN_RECORD).write_text(json.dumps(record))
+from gtsweep.tracking.multirun import multirun_record
 
 
 class MultirunReport(Callback):

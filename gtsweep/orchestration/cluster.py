@@ -8,6 +8,7 @@ are printed and kept for ``run.json`` (:func:`record_cluster`, :func:`cluster_re
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import logging
 import os
@@ -17,7 +18,7 @@ import socket
 import sys
 import time
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, NoReturn
 
 from gtsweep.core.errors import BadInput
 
@@ -161,9 +162,21 @@ def end_ray_processes(ray_dir: str | None, owner: int | None = None) -> None:
         time.sleep(STOP_PAUSE_S)
 
 
-def ray_stopped() -> bool:
-    """Whether :func:`stop_workers` ended this process's Ray."""
-    return _stopped["ray"]
+def leave(code: int | str | None) -> NoReturn:
+    """End the process with a :class:`SystemExit`'s ``code``. After :func:`stop_workers` ended Ray, the process
+    skips C's exit handlers: once its raylet and GCS are gone, Ray's core-worker exit handler
+    (``CoreWorkerProcess::HandleAtExit``, Ray 2.60) waits for the dead GCS and then crashes the process (SIGSEGV:
+    exit status -11 instead of 130). Python's own exit work (atexit functions, logging, the streams) is done first."""
+    if not _stopped["ray"]:
+        sys.exit(code)
+    if isinstance(code, str):  # sys.exit("message"): Python prints it
+        print(code, file=sys.stderr)
+    atexit._run_exitfuncs()
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code if isinstance(code, int) else (0 if code is None else 1))
 
 
 #: Ray names a node's session after the process that starts it: ``session_<date>_<time>_<microseconds>_<pid>``

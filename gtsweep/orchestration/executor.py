@@ -181,7 +181,7 @@ class RayExecutor:
                 try:
                     result = ray.get(ref)
                 except ray.exceptions.LocalRayletDiedError:
-                    raise  # this process's own raylet: the cluster is lost, not the cell (gtsweep.cli.lifecycle)
+                    raise  # this process's own raylet: the cluster is lost, not the cell (core.errors.failure_cause)
                 except ray.exceptions.RayError as e:  # the task raised, or its worker died
                     cause = getattr(e, "cause", None)
                     result = {"error": describe_error(cause) if isinstance(cause, Exception)

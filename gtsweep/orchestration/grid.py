@@ -2,10 +2,11 @@
 matcher, and for pose the estimator) to evaluate, from a config.
 
 A composed config brings each method's full parameters (Hydra merged its YAML and the command line onto its
-defaults: ``gtsweep.cli.schemas``); :meth:`~gtsweep.core.registry.Method.params` checks them strictly (and fills in
-the defaults for a config that has only some: a script's, a user's file without its schema), and the method is
-built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares a new method (:meth:`~gtsweep.core.registry.Registry.declare`); the
-grid carries these declarations (:attr:`Grid.declared`) to every process that runs its tasks.
+defaults: ``gtsweep.orchestration.schemas``); :meth:`~gtsweep.core.registry.Method.params` checks them strictly (and
+fills in the defaults for a config that has only some: a script's, a user's file without its schema), and the method
+is built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares
+a new method (:meth:`~gtsweep.core.registry.Registry.declare`); the grid carries these declarations
+(:attr:`Grid.declared`) to every process that runs its tasks.
 A cell's identity is its methods and their full configuration, hashed; a resumed sweep keeps a finished cell
 only when that hash is unchanged. The survey's impossible pairings are marked not applicable here, before any work,
 and so is a matcher that cannot match a descriptor's kind (a FLANN index forced to KD-trees on binary descriptors).
