@@ -181,8 +181,8 @@ def resolve_group(cfg: Mapping, group: str, search_space: bool = False) -> dict[
                 resolved[name] = settings
                 continue
         method = registry.get(name)
-        settings["params"] = method.params(settings.get("params"))
-        for params in _variants(cfg, group, settings):
+        settings["params"] = method.check(settings.get("params"))  # a script's partial params: defaults filled in
+        for params in _variants(cfg, group, settings)[1:]:  # a descriptor's per-detector ones
             method.check(params)
         resolved[name] = settings
     return resolved
