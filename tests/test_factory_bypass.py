@@ -94,7 +94,7 @@ BYPASSES = [
     Bypass("numpy-via-cv2", "cv2.numpy.savetxt", {"fname": "PWNED", "X": [1]}),
     Bypass("numpy-via-gtsweep", "gtsweep.stages.detect.np.save", {"file": "PWNED", "arr": [1]}),
     Bypass("hydra-call", "gtsweep.cli.app.hydra.utils.call", {"config": {"_target_": "os.system", **TOUCH}}),
-    Bypass("omegaconf-save", "gtsweep.core.rundirs.OmegaConf.save", {"config": {"a": 1}, "f": "PWNED"}),
+    Bypass("omegaconf-save", "gtsweep.cli.app.OmegaConf.save", {"config": {"a": 1}, "f": "PWNED"}),
     # gtsweep functions that are not method constructors
     Bypass("gtsweep-new-dir", "gtsweep.core.rundirs.new_dir", {"base": "PWNED"}),
     Bypass("gtsweep-write", "gtsweep.core.atomic.write_atomically", {"path": "PWNED", "content": "x"}),

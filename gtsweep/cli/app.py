@@ -18,11 +18,11 @@ from gtsweep.core import interrupts
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted, interruptible
-from gtsweep.core.rundirs import claim
+from gtsweep.core.rundirs import REPORT, SWEEP_RECORD, claim
 from gtsweep.experiments.kinds import EXPERIMENTS, Experiment, ReportOptions
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.progress import Progress
-from gtsweep.orchestration.resume_pick import SWEEP_RECORD, command_key, kept_cells
+from gtsweep.orchestration.resume_pick import command_key, kept_cells
 from gtsweep.orchestration.skeleton import run_sweep
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import scale_from_config
@@ -83,7 +83,7 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path,
         scale = scale_from_config(OmegaConf.to_container(cfg, resolve=True))
         options = ReportOptions(plots=cfg.report.plots, views=lambda: load_views(output_dir), by=cfg.report.by,
                                 alpha=cfg.report.alpha, scale=scale)
-        tables, files = experiment.report(outcome.summaries, output_dir / "report", options)
+        tables, files = experiment.report(outcome.summaries, output_dir / REPORT, options)
         if tracker is not None:
             tracker.end(outcome, artifacts=files)
     except (Interrupted, Exception) as e:  # bad input, Ctrl-C, or a failure anywhere (disk, store, cluster)
@@ -91,7 +91,7 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path,
         stop(e, lambda: kept_cells(output_dir), tracker.abort if tracker is not None else None)
     progress.close()
     summary = [experiment.summary(outcome, tables), scale.line(),
-               f"report: {len(files)} tables and plots in {output_dir / 'report'}"]
+               f"report: {len(files)} tables and plots in {output_dir / REPORT}"]
     if tracker is not None:
         summary.append(tracker.ui_hint())
     log.info("\n".join(summary))

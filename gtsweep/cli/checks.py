@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import sys
 
-from gtsweep.core.config import plain
+from gtsweep.core.config import METHOD_GROUPS, plain
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, causes, nearest
 from gtsweep.core.factories import check_composed
 from gtsweep.core.registry import availability, left_out_line, require_available
-from gtsweep.core.searchpath import METHOD_GROUPS, Configs
+from gtsweep.core.searchpath import Configs
 from gtsweep.orchestration.grid import MOVED, REGISTRIES
 from gtsweep.orchestration.settings import check_settings
 from gtsweep.stages import device as devices

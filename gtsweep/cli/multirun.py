@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hydra.experimental.callback import Callback
 
+from gtsweep.core.rundirs import CELLS, COMBINED
 from gtsweep.tracking.multirun import multirun_record
 
 
@@ -29,13 +30,13 @@ class MultirunReport(Callback):
                 print(f"gtsweep: multirun: nothing combined ({e})")
                 files = []
             else:
-                print(f"multirun: jobs combined in {sweep_dir / 'combined'} (summary.md: mean ± std over the seeds)")
+                print(f"multirun: jobs combined in {sweep_dir / COMBINED} (summary.md: mean ± std over the seeds)")
             record = multirun_record(sweep_dir)
             if record.get("parent_run_id"):
                 from gtsweep.tracking.sweep import close_multirun
 
                 close_multirun(config.mlflow, record["parent_run_id"],
-                               [f for f in files if f.parent == sweep_dir / "combined"], reason)
+                               [f for f in files if f.parent == sweep_dir / COMBINED], reason)
         finally:
             if failed:
                 print(f"gtsweep: multirun: {reason}", file=sys.stderr)
@@ -46,7 +47,7 @@ def failed_cells(sweep_dir: Path) -> list[str]:
     """The cells of a multirun's jobs that ended in error, as ``<job>/<cell>`` (a job with failed cells lets the
     other jobs run; the multirun as a whole then fails)."""
     failed = []
-    for cell in sorted(Path(sweep_dir).glob("*/cells/*.json")):
+    for cell in sorted(Path(sweep_dir).glob(f"*/{CELLS}/*.json")):
         try:
             status = json.loads(cell.read_text()).get("status")
         except (OSError, ValueError):

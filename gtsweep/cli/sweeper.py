@@ -7,8 +7,9 @@ from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from gtsweep.cli.checks import SINGLE_GROUPS, check_job, translate
 from gtsweep.cli.lifecycle import fail
 from gtsweep.cli.runs import start_sweep_dir
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.core.errors import BadInput, GtsweepError
-from gtsweep.core.searchpath import METHOD_GROUPS, Configs, configs_of_sources, options_of
+from gtsweep.core.searchpath import Configs, configs_of_sources, options_of
 from gtsweep.tracking.multirun import open_multirun_run
 
 

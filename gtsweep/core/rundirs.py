@@ -8,12 +8,18 @@ import os
 import tempfile
 from pathlib import Path
 
-from filelock import FileLock, Timeout
-from omegaconf import OmegaConf
-
 from gtsweep.core.errors import BadInput
 
 LOCK_FILE = ".gtsweep.lock"
+#: What a run writes in its output directory, named once.
+CELLS = "cells"                    # a record (and per-view rows) per finished cell
+RESULTS = "results.csv"            # the cells' summaries
+REPORT = "report"                  # the run's tables and plots
+RUN_RECORD = "run.json"            # the sweep's record: its grid, cluster, outcome
+PARENT_RECORD = "mlflow.json"      # the sweep's MLflow parent run
+SWEEP_RECORD = "sweep.json"        # the command's key (resume finds the run by it) and overrides
+MULTIRUN_RECORD = "multirun.json"  # a multirun's key, swept keys and MLflow run
+COMBINED = "combined"              # a multirun's tables across its jobs
 #: The settings ``${gtsweep.new_dir:...}`` may stand in; anywhere else (a planted file) it creates nothing.
 RUN_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
 _claimed: dict = {}  # (setting, base) -> the folder claimed for it
@@ -49,6 +55,8 @@ def run_dir(base: str, _node_) -> str:
 
 def register_resolvers() -> None:
     """``${gtsweep.new_dir:...}`` for conf/config.yaml (:func:`run_dir`)."""
+    from omegaconf import OmegaConf
+
     if not OmegaConf.has_resolver("gtsweep.new_dir"):
         OmegaConf.register_new_resolver("gtsweep.new_dir", run_dir)
 
@@ -65,6 +73,8 @@ def check_writable(directory: str | os.PathLike) -> None:
 
 def claim(output_dir: Path) -> None:
     """Lock ``output_dir`` for this process's life: a second run writing there stops with one line."""
+    from filelock import FileLock, Timeout
+
     key = str(output_dir.resolve())
     if key in _held:
         return

@@ -25,9 +25,9 @@ from gtsweep.stages import device as devices
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
-from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.match import MATCHERS, SURVEY_MATCHER
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pose import ESTIMATORS
+from gtsweep.stages.pose import ESTIMATORS, SURVEY_ESTIMATOR
 from gtsweep.stages.select import SELECTORS
 
 #: The experiments on pairs of images (the survey's): each a grid of this module.
@@ -38,7 +38,7 @@ PAIR_TRANSFORMS = ("incremental", "absolute")
 REGISTRIES: dict[str, Registry] = {"detector": DETECTORS, "selector": SELECTORS, "descriptor": DESCRIPTORS,
                                    "transform": TRANSFORMS, "matcher": MATCHERS, "estimator": ESTIMATORS}
 #: The survey's matcher and estimator: a config without these groups (a script's, an older one) uses them.
-SURVEY_METHODS = {"matcher": "bf_ratio", "estimator": "ransac"}
+SURVEY_METHODS = {"matcher": SURVEY_MATCHER, "estimator": SURVEY_ESTIMATOR}
 #: Settings that were the experiment's and are now a matcher's or an estimator's parameters (matching and pose).
 MOVED = {"ratio": "matcher.bf_ratio.params.ratio", "mutual": "matcher.bf_ratio.params.mutual",
          "pose.model": "estimator.ransac.params.model", "pose.iterations": "estimator.ransac.params.iterations",

@@ -13,10 +13,10 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from gtsweep.core.rundirs import CELLS, PARENT_RECORD, RUN_RECORD, SWEEP_RECORD
+
 #: Files of a run that started: its MLflow parent run and its run record (cells are under ``cells/``).
-RUN_FILES = ("mlflow.json", "run.json")
-#: Every run's record of its command (:func:`command_key`) and overrides.
-SWEEP_RECORD = "sweep.json"
+RUN_FILES = (PARENT_RECORD, RUN_RECORD)
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,7 @@ class Pick:
 
 
 def finished_cells(directory: Path) -> int:
-    return len(list((directory / "cells").glob("*.json")))
+    return len(list((directory / CELLS).glob("*.json")))
 
 
 def kept_cells(directory: Path) -> str:
@@ -43,7 +43,7 @@ def holds_run(directory: Path) -> bool:
 
 def last_write(directory: Path) -> float:
     """When the run in ``directory`` last wrote: its newest cell or run file."""
-    files = [*(directory / "cells").glob("*.json"), *(directory / n for n in RUN_FILES), directory / SWEEP_RECORD]
+    files = [*(directory / CELLS).glob("*.json"), *(directory / n for n in RUN_FILES), directory / SWEEP_RECORD]
     return max((f.stat().st_mtime for f in files if f.exists()), default=0.0)
 
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from gtsweep.core.rundirs import MULTIRUN_RECORD
 from gtsweep.tracking.tags import overrides_name
-
-MULTIRUN_RECORD = "multirun.json"
 
 
 def multirun_record(sweep_dir: Path) -> dict:
