@@ -80,10 +80,8 @@ def open_store(cfg: Mapping | None, name: str):
     """
     from mlflow.tracking import MlflowClient
 
-    from gtsweep.orchestration.settings import SETTINGS
-
     uri = tracking_uri(cfg)
-    probe(uri, SETTINGS["mlflow.timeout_s"].check("mlflow.timeout_s", (cfg or {}).get("timeout_s", 5)))
+    probe(uri, (cfg or {}).get("timeout_s", 5))  # its range checked with the run settings
     with store_lock(uri):
         try:
             client = MlflowClient(uri)
