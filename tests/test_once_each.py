@@ -7,6 +7,7 @@ from pathlib import Path
 
 from gtsweep.core import rundirs
 from gtsweep.core.config import METHOD_GROUPS
+from gtsweep.core.paths import DEFAULT_CACHE_DIR
 from gtsweep.orchestration.grid import REGISTRIES, SURVEY_METHODS
 from gtsweep.stages.match import SURVEY_MATCHER
 from gtsweep.stages.pose import SURVEY_ESTIMATOR
@@ -54,3 +55,12 @@ def test_the_output_names_are_written_once():
     for name in OUTPUT_NAMES:
         places = sorted(file for file, value in literals if value == name)
         assert [p for p in places if p not in ALSO.get(name, ())] == ["rundirs.py"], name
+
+
+def test_the_configs_keep_their_files_in_the_cache_folder():
+    """The cache folder is named once in code (core.paths); the configs' cache settings lie inside it."""
+    cfg = compose_config([])
+    survey = compose_config(["dataset=survey"])
+    for setting in (cfg.cache.dir, cfg.dataset.cache_dir, survey.dataset.cache_dir):
+        assert Path(setting).parts[0] == str(DEFAULT_CACHE_DIR)
+    assert [file for file, value in _literals() if value == str(DEFAULT_CACHE_DIR)] == ["paths.py"]

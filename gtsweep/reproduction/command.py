@@ -25,7 +25,7 @@ import pandas as pd
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import SIGNALS, Interrupted, on_signal
-from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
+from gtsweep.core.paths import CONF_DIR, DEFAULT_CACHE_DIR, PROJECT_DIR
 from gtsweep.reproduction import rounds as runs
 from gtsweep.reproduction.run_record import RunRecord
 from gtsweep.reproduction.findings import check_findings, survey_variant
@@ -268,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", choices=CHOICES, default="decide",
                         help="a fixed size, or `decide`: rounds of growing counts until every finding is decided")
     parser.add_argument("--presets", nargs="*", default=list(PRESETS), choices=PRESETS)
-    parser.add_argument("--work", default=".gtsweep_cache/reproduce", help="where the runs go")
+    parser.add_argument("--work", default=str(DEFAULT_CACHE_DIR / "reproduce"), help="where the runs go")
     parser.add_argument("--docs", default=str(PROJECT_DIR / "docs"), help="where REPRODUCTION.md goes")
     parser.add_argument("--alpha", type=float, default=ALPHA,
                         help=f"significance level of the findings' tests and the ties (default {ALPHA})")
