@@ -64,3 +64,15 @@ def test_the_configs_keep_their_files_in_the_cache_folder():
     for setting in (cfg.cache.dir, cfg.dataset.cache_dir, survey.dataset.cache_dir):
         assert Path(setting).parts[0] == str(DEFAULT_CACHE_DIR)
     assert [file for file, value in _literals() if value == str(DEFAULT_CACHE_DIR)] == ["paths.py"]
+
+
+def test_a_run_settings_default_is_the_primary_configs():
+    """A caller that gives only some run settings (a script, a library call) gets conf/config.yaml's defaults."""
+    from gtsweep.orchestration.settings import default
+
+    cfg = compose_config([])
+    for key in ("runner.backend", "runner.opencv_threads", "runner.connect_timeout_s", "runner.gpus_per_task",
+                "runner.describe_together", "runner.dashboard", "cache.enabled", "mlflow.timeout_s",
+                "mlflow.experiment"):
+        section, name = key.split(".")
+        assert default(key) == cfg[section][name], key

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Mapping, NoReturn
 
 from gtsweep.core.errors import BadInput
+from gtsweep.orchestration.settings import default
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def check_address(runner_cfg: Mapping) -> None:
     retries "Failed to connect to GCS" for minutes, and hangs on a port that accepts but is not Ray. ``local`` and
     ``auto`` need no probe (``auto`` is resolved and refused at once by Ray when no cluster runs)."""
     address = cluster_address(runner_cfg)
-    timeout = runner_cfg.get("connect_timeout_s", 10)  # its range checked with the run settings
+    timeout = runner_cfg.get("connect_timeout_s", default("runner.connect_timeout_s"))  # range: check_settings
     if address in ("local", "auto"):
         return
     host, _, port = address.split("://")[-1].rpartition(":")

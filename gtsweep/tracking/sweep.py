@@ -41,7 +41,7 @@ from gtsweep.tracking.params import (
     parsed_config,
     written_options,
 )
-from gtsweep.tracking.store import git_commit, open_store, tracking_uri
+from gtsweep.tracking.store import experiment_name, git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (PAIRING_TAG, cell_names, child_name, cluster_tags, model_development, ms,
                                    pairing_label, quiet_mlflow, source_tags, unique_name)
 from gtsweep.tracking.views import runs_url, save_pairings_view
@@ -73,7 +73,7 @@ class SweepTracker:
         logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
         self.cfg = cfg
         self.uri = tracking_uri(cfg)
-        self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
+        self.experiment_name = experiment_name(cfg)
         self.output_dir = Path(output_dir)
         self.config_yaml = config_yaml
         self.run_name, self.nest_under = run_name, nest_under  # nest_under: a multirun's run
@@ -295,7 +295,7 @@ def _number(value) -> float:
 def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
     """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
     quiet_mlflow()
-    client, experiment = open_store(cfg, (cfg or {}).get("experiment") or "gtsweep")  # locked first use
+    client, experiment = open_store(cfg)  # locked first use
     if previous is not None:
         reopen(client, previous)
         return previous
