@@ -1,7 +1,7 @@
 """Bash completion of ``gtsweep`` and ``python -m gtsweep`` (README, "Shell completion"): ``-sc install=bash``
-prints the script (completion.bash); on TAB it runs ``<command> -sc query=bash`` with ``COMP_LINE``/``COMP_POINT``, and :func:`query`
-answers a config group's value (``detector=s``, ``detector=[sift,o``, ``detector=tuned/``), whole words from where
-bash's current word starts; any other word is left to Hydra's completion (its config keys)."""
+prints the script (completion.bash); on TAB it runs ``<command> -sc query=bash`` with ``COMP_LINE``/``COMP_POINT``,
+and :func:`query` answers a config group's value (``detector=s``, ``detector=[sift,o``, ``detector=tuned/``), whole
+words from where bash's current word starts; any other word is left to Hydra's completion (its config keys)."""
 from __future__ import annotations
 
 import os

@@ -355,10 +355,11 @@ def check(hypothesis: Hypothesis, frames: dict, views: dict, alpha: float) -> Fi
 
 
 def survey_variant(frames: dict[str, pd.DataFrame]) -> tuple[dict[str, pd.DataFrame], str]:
-    """``frames`` reduced to one (matcher, estimator) variant, and a sentence saying which, so that no finding
-    pools cells that differ only in matcher or estimator: the survey's
-    (:data:`~gtsweep.orchestration.grid.SURVEY_METHODS`) where a run has it, else the first one seen. Cells without the column (detection) are kept. The sentence is empty when every
-    frame has only the survey's variant (or none)."""
+    """``frames`` reduced to one (matcher, estimator) variant, and a sentence saying which, so that no finding pools
+    cells that differ only in matcher or estimator: the survey's
+    (:data:`~gtsweep.orchestration.grid.SURVEY_METHODS`) where a run has it, else the first one seen. Cells without
+    the column (detection) are kept. The sentence is empty when every frame has only the survey's variant (or
+    none)."""
     chosen, left_out, shown = {}, 0, {}
     for name, df in frames.items():
         if df is None or not len(df):
