@@ -72,7 +72,8 @@ def _sweep(experiment: Experiment, cfg: DictConfig, hydra_cfg, output_dir: Path,
         if cfg.mlflow.enabled:
             from gtsweep.tracking.sweep import SweepTracker
 
-            name, nest_under = job_run(hydra_cfg.overrides.task, output_dir, sweep_dir, hydra_cfg.job.num)
+            job = hydra_cfg.job.num if sweep_dir else None  # a single run has no job number
+            name, nest_under = job_run(hydra_cfg.overrides.task, output_dir, sweep_dir, job)
             tracker = SweepTracker(cfg.mlflow, output_dir, OmegaConf.to_yaml(cfg, resolve=True), run_name=name,
                                    nest_under=nest_under)
             hooks = (tracker.log_cell,)
