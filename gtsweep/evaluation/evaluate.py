@@ -25,8 +25,8 @@ from gtsweep.evaluation.views import views
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.lightglue import Side
-from gtsweep.stages.match import MATCHERS, match_sides
-from gtsweep.stages.pose import ESTIMATORS
+from gtsweep.stages.match import MATCHERS, SURVEY_MATCHER, match_sides
+from gtsweep.stages.pose import ESTIMATORS, SURVEY_ESTIMATOR
 from gtsweep.stages.select import select
 
 
@@ -154,7 +154,7 @@ def survey_methods(experiment: dict):
     matcher = {k: experiment[k] for k in ("ratio", "mutual") if k in experiment}
     pose = experiment.get("pose") or {}
     estimator = {k: pose[k] for k in ("model", "iterations", "threshold") if k in pose}
-    return MATCHERS.get("bf_ratio").build(matcher), ESTIMATORS.get("ransac").build(estimator)
+    return MATCHERS.get(SURVEY_MATCHER).build(matcher), ESTIMATORS.get(SURVEY_ESTIMATOR).build(estimator)
 
 
 #: A (matcher, estimator) combination; the estimator is None outside the pose experiment.
@@ -166,7 +166,7 @@ def build_methods(methods: dict | None, experiment: dict) -> tuple[dict, dict]:
     are ``{None: None}`` outside the pose experiment."""
     if methods is None:
         matcher, estimator = survey_methods(experiment)
-        matchers, estimators = {"bf_ratio": matcher}, {"ransac": estimator}
+        matchers, estimators = {SURVEY_MATCHER: matcher}, {SURVEY_ESTIMATOR: estimator}
     else:
         matchers = {name: MATCHERS.get(name).build(params) for name, params in methods["matchers"].items()}
         estimators = {name: ESTIMATORS.get(name).build(params)

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from typing import Mapping
 
+import yaml
+
 from gtsweep.core.config import plain
+from gtsweep.core.paths import CONF_DIR
 from gtsweep.core.ranges import Choice, ListOf, Range, check_all
 from gtsweep.stages.scales import FOREIGN_SCALES
 
@@ -50,10 +53,21 @@ SETTINGS = {
 }
 
 
+#: The sections of the primary config that hold run settings.
+RUN_SECTIONS = ("seed", "experiment", "runner", "cache", "mlflow", "report")
+#: Their defaults, written once: conf/config.yaml (a caller that gives only some settings gets the rest here).
+_PRIMARY = yaml.safe_load((CONF_DIR / "config.yaml").read_text())
+
+
+def default(key: str):
+    """The default of the run setting ``key`` (``runner.backend``): conf/config.yaml's."""
+    section, name = key.split(".")
+    return _PRIMARY[section][name]
+
+
 def check_settings(cfg: Mapping) -> None:
     """Raise a one-line BadInput for the first run setting of ``cfg`` outside its allowed values."""
-    values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")
-              if key in cfg}
+    values = {key: plain(cfg.get(key)) for key in RUN_SECTIONS if key in cfg}
     check_all(values, SETTINGS)
     if (values.get("runner") or {}).get("dashboard"):  # its packages, before anything is created
         from gtsweep.orchestration.dashboard import check_dashboard

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from gtsweep.evaluation.statistics import wilson_interval
+from gtsweep.orchestration.grid import SURVEY_METHODS
 from gtsweep.report.labels import label
 from gtsweep.report.samples import Views
 from gtsweep.report.tables import Table, write_tables
@@ -36,8 +37,7 @@ def bin_labels() -> list[str]:
 def method_label(methods: dict) -> str:
     """``ALIKED-n16rot + ALIKED-n16rot, LightGlue`` (the matcher and estimator only when not the survey's)."""
     text = f"{label(methods['detector'])} + {label(methods['descriptor'])}"
-    extras = [label(methods[k]) for k, survey in (("matcher", "bf_ratio"), ("estimator", "ransac"))
-              if methods.get(k) and methods[k] != survey]
+    extras = [label(methods[k]) for k, survey in SURVEY_METHODS.items() if methods.get(k) and methods[k] != survey]
     return text + (", " + ", ".join(extras) if extras else "")
 
 

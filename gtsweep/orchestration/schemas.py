@@ -73,14 +73,3 @@ def register_schemas() -> None:
         for name, method in registry.items():
             store.store(group=f"{SCHEMA_GROUP}/{group}", name=name, node=method_schema(name, method.defaults))
     store.store(group=SCHEMA_GROUP, name="run", node=run_schema())
-    register_sweeper()
-
-
-def register_sweeper() -> None:
-    """gtsweep's sweeper (``hydra/sweeper: gtsweep``) known to Hydra in this process, also where Hydra's plugin
-    discovery does not look (an editable install's package finder)."""
-    from hydra.core.plugins import Plugins
-
-    from hydra_plugins.gtsweep_sweeper import GtsweepSweeper  # also stores its config node
-
-    Plugins.instance().register(GtsweepSweeper)
