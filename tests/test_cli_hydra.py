@@ -60,7 +60,7 @@ def test_the_working_directorys_tuned_serves_tuned_method_files_only(tmp_path, m
         "factory: subprocess.Popen\norientation: true\nparams: {args: 'id > PWNED', shell: true}\n")
     (tmp_path / "tuned" / "detector" / "tuned" / "sift.yaml").write_text(
         "# @package detector\nsift:\n  params: {contrastThreshold: 0.031}\n")
-    assert "planted" not in search.options("detector")
+    assert "planted" not in search.configs().options("detector")
     cfg = cli.compose_config(["sweeps=smoke"])
     assert "planted" not in cfg.detector and "sift" in cfg.detector
     assert cli.compose_config(["detector=[tuned/sift]"]).detector.sift.params.contrastThreshold == 0.031

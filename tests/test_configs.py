@@ -129,7 +129,7 @@ def test_a_users_searchpath_keeps_gtsweeps_entries(user_conf):
     assert args.overrides == [f"hydra.searchpath=[file://{user_conf},tuned://tuned,pkg://gtsweep.conf,every://all]"]
     assert search.search_path(args) == (
         search.PRIMARY, f"file://{user_conf}", "tuned://tuned", "pkg://gtsweep.conf", "every://all")
-    assert "my_star" in search.options("detector", [f"hydra.searchpath=[file://{user_conf}]"])
+    assert "my_star" in search.configs([f"hydra.searchpath=[file://{user_conf}]"]).options("detector")
     cfg = compose_config([f"hydra.searchpath=[file://{user_conf}]", "detector=[my_star,orb]"])
     assert set(cfg.detector) == {"my_star", "orb"}
 
@@ -168,7 +168,7 @@ def test_pyproject_ships_every_package_and_the_configs():
 
 
 def test_every_package_method_config_composes_onto_its_schema():
-    """A method of the code has its defaults in the ConfigStore (gtsweep.cli.schemas); its YAML lists that schema
+    """A method of the code has its defaults in the ConfigStore (orchestration.schemas); its YAML lists that schema
     first, so that Hydra merges the file and the command line onto the defaults once. (A tuned file holds every
     parameter; experiment=optimize writes the same line into it, so that its values are typed too.)"""
     import yaml

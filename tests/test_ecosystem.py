@@ -29,6 +29,18 @@ def test_ray_options_hide_rays_warnings_and_the_dashboard_unless_asked(monkeypat
     assert executor.ray_options({"dashboard": True})["include_dashboard"] is True
 
 
+def test_a_ray_without_its_dependency_check_falls_back_to_aiohttp(monkeypatch):
+    import importlib.util
+    import sys
+    import types
+
+    monkeypatch.setitem(sys.modules, "ray._private.utils", types.ModuleType("ray._private.utils"))
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
+    assert dashboard._dashboard_missing() == "No module named 'aiohttp'"
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: object())
+    assert dashboard._dashboard_missing() is None
+
+
 def test_run_names_fit_the_name_column():
     cells = [Cell("sift", "nms", "brief", "incremental"), Cell("orb", "anms", None, "rotation")]
     assert cell_names(cells, several_selectors=False) == {"sift__nms__brief__incremental": "sift·brief·inc",

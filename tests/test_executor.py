@@ -138,8 +138,6 @@ def test_one_shard_builder_for_the_sweep_and_the_optimiser(gravel_small):
     assert [[item["id"] for item in s["items"]] for s in optimiser["synthetic"]] == [["optimisation0"]]
     with pytest.raises(BadInput, match="no absolute images"):
         load_shards(dataset, {"absolute": {"kind": "pairs"}})
-    with pytest.raises(BadInput, match="shard_size"):
-        load_shards(dataset, transforms, shard_size=0)
 
 
 def _graph(executor, image) -> list:

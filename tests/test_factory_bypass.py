@@ -75,7 +75,7 @@ BYPASSES = [
     # attribute chains through a module to another module
     Bypass("cv2-os-system", "cv2.os.system", TOUCH),
     Bypass("gtsweep-module-os", "gtsweep.core.plugins.os.system", TOUCH),
-    Bypass("gtsweep-module-subprocess", "gtsweep.cli.watchdog.subprocess.Popen", SHELL),
+    Bypass("gtsweep-module-subprocess", "gtsweep.tracking.watchdog.subprocess.Popen", SHELL),
     Bypass("cv2-sys-modules", "cv2.sys.modules.os.system", TOUCH),
     Bypass("xfeatures2d-walk", "cv2.xfeatures2d.SURF_create.__self__.os.system", TOUCH),
     # dunder names
@@ -94,9 +94,9 @@ BYPASSES = [
     Bypass("numpy-via-cv2", "cv2.numpy.savetxt", {"fname": "PWNED", "X": [1]}),
     Bypass("numpy-via-gtsweep", "gtsweep.stages.detect.np.save", {"file": "PWNED", "arr": [1]}),
     Bypass("hydra-call", "gtsweep.cli.app.hydra.utils.call", {"config": {"_target_": "os.system", **TOUCH}}),
-    Bypass("omegaconf-save", "gtsweep.cli.lifecycle.OmegaConf.save", {"config": {"a": 1}, "f": "PWNED"}),
+    Bypass("omegaconf-save", "gtsweep.cli.app.OmegaConf.save", {"config": {"a": 1}, "f": "PWNED"}),
     # gtsweep functions that are not method constructors
-    Bypass("gtsweep-new-dir", "gtsweep.cli.lifecycle.new_dir", {"base": "PWNED"}),
+    Bypass("gtsweep-new-dir", "gtsweep.core.rundirs.new_dir", {"base": "PWNED"}),
     Bypass("gtsweep-write", "gtsweep.core.atomic.write_atomically", {"path": "PWNED", "content": "x"}),
     # a plug-in the user named exposes only its registered constructors
     Bypass("plugin-walk", "goodplugin.os.system", TOUCH, args=("plugins=[goodplugin]",)),
@@ -164,7 +164,7 @@ def _composed(root: Path, place: str, bypass: Bypass):
 def test_the_guards_refuse_each_bypass_in_process(bypass, place, tmp_path, monkeypatch):
     """The file check of the command line refuses the planted file, or else the composed config's factory check
     does (a factory resolved by exact name, interpolations unresolved); nothing is imported or created."""
-    from gtsweep.cli.lifecycle import register_resolvers
+    from gtsweep.core.rundirs import register_resolvers
 
     register_resolvers()
     monkeypatch.chdir(tmp_path)

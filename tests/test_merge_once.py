@@ -1,14 +1,15 @@
 """A method parameter given on the command line is merged onto the method's defaults in one place: Hydra's
-composition, onto the method's schema in the ConfigStore (:mod:`gtsweep.cli.schemas`). The command line's checks
-compose without gtsweep merging anything; the grid, the pre-flight build and the task receive the full parameters
-(a strict :meth:`~gtsweep.core.registry.Method.params` of full parameters adds nothing)."""
+composition, onto the method's schema in the ConfigStore (:mod:`gtsweep.orchestration.schemas`). The command line's
+checks compose without gtsweep merging anything; the grid, the pre-flight build and the task receive the full
+parameters (a strict :meth:`~gtsweep.core.registry.Method.params` of full parameters adds nothing), each checking them
+once."""
 from __future__ import annotations
 
 import numpy as np
 from omegaconf import OmegaConf
 
 from gtsweep.cli import overrides as cli
-from gtsweep.cli import schemas
+from gtsweep.orchestration import schemas
 from gtsweep.core.registry import Method
 from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.stages.detect import DETECTORS, detect_timed
@@ -40,4 +41,5 @@ def test_a_command_line_parameter_is_merged_onto_its_defaults_once(monkeypatch):
     params = grid.detectors["orb"]["params"]
     image = np.random.default_rng(0).integers(0, 255, (240, 320), dtype=np.uint8)
     detect_timed(image, "orb", None, **params)  # what a detection task does with the grid's parameters
-    assert params == composed and calls and merges == []  # nobody after Hydra merged defaults in again
+    assert params == composed and merges == []  # nobody after Hydra merged defaults in again
+    assert calls == [composed, composed]  # one strict check in the grid's pre-flight build, one in the task's

@@ -69,7 +69,7 @@ def page(ui):
 
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=ui["chromium"], args=["--no-sandbox"])
-        page = browser.new_page(viewport={"width": 1600, "height": 1000})
+        page = browser.new_page(viewport={"width": 1920, "height": 1080})
         page.set_default_timeout(90_000)
         yield page
         browser.close()
@@ -93,6 +93,11 @@ def test_printed_address_opens_the_training_view_with_the_pairings_view(ui, page
     assert "Models" in nav and "Evaluation runs" not in nav and "Judges" not in nav  # training, not GenAI layout
     headers = [h.strip() for h in page.get_by_role("columnheader").all_inner_texts()]
     assert {"detector", "descriptor", "precision"} <= set(headers) and "seed" not in headers, headers
+    labels = page.get_by_text("Group: ", exact=False)
+    tags = {run.data.tags["gtsweep.pairing"] for run in _cell_runs(ui)}
+    assert sorted(label.removeprefix("Group: ").strip() for label in labels.all_inner_texts()) == sorted(tags)
+    cut = [label.evaluate("e => e.scrollWidth > e.clientWidth") for label in labels.all()]
+    assert not any(cut), "a group label is cut short in its column"
 
 
 def test_cell_run_shows_its_params_and_its_strength_figure(ui, page):

@@ -183,7 +183,8 @@ def test_detector_without_space_stops_before_any_work(tmp_path):
 def test_every_detector_declares_a_valid_space(tmp_path):
     cfg = compose_config(tiny_overrides(tmp_path, "experiment=optimize", "detector=all"))
     targets = build_targets(cfg, read_settings(cfg))
-    assert len(targets) == len(search.options("detector")) and all(1 <= len(t.distributions) <= 3 for t in targets)
+    assert len(targets) == len(search.configs().options("detector"))
+    assert all(1 <= len(t.distributions) <= 3 for t in targets)
 
 
 def test_score_is_lexicographic():

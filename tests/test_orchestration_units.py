@@ -9,7 +9,7 @@ from sweep_helpers import checked_jobs
 
 from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
-from gtsweep.cli import runs
+from gtsweep.orchestration import resume_pick
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
 from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash
@@ -140,16 +140,16 @@ def test_good_overrides_pass(tmp_path, monkeypatch):
 def test_resume_finds_the_newest_run_of_the_same_command(tmp_path):
     run = tmp_path / "outputs" / "2026-01-01" / "10-00-00"
     run.mkdir(parents=True)
-    (run / runs.SWEEP_RECORD).write_text(json.dumps({"key": runs.command_key(["detector=[sift]"])}))
+    (run / resume_pick.SWEEP_RECORD).write_text(json.dumps({"key": resume_pick.command_key(["detector=[sift]"])}))
     (run / "mlflow.json").write_text("{}")  # a run that started (one that never did is passed over)
-    assert runs.command_key(["detector=[sift]", "resume=true"]) == runs.command_key(["detector=[sift]"])
-    assert runs.earlier_run(runs.command_key(["detector=[sift]"]), False, tmp_path) == run
-    assert runs.earlier_run(runs.command_key(["detector=[orb]"]), False, tmp_path) is None
+    assert resume_pick.command_key(["detector=[sift]", "resume=true"]) == resume_pick.command_key(["detector=[sift]"])
+    assert resume_pick.earlier_run(resume_pick.command_key(["detector=[sift]"]), False, tmp_path) == run
+    assert resume_pick.earlier_run(resume_pick.command_key(["detector=[orb]"]), False, tmp_path) is None
     sweep = tmp_path / "multirun" / "2026-01-01" / "10-00-00"
     (sweep / "0").mkdir(parents=True)  # a multirun's jobs record its command's key
-    (sweep / "0" / runs.SWEEP_RECORD).write_text(json.dumps({"key": runs.command_key(["seed=0,1"])}))
+    (sweep / "0" / resume_pick.SWEEP_RECORD).write_text(json.dumps({"key": resume_pick.command_key(["seed=0,1"])}))
     (sweep / "0" / "mlflow.json").write_text("{}")
-    assert runs.earlier_run(runs.command_key(["seed=0,1", "resume=true"]), True, tmp_path) == sweep
+    assert resume_pick.earlier_run(resume_pick.command_key(["seed=0,1", "resume=true"]), True, tmp_path) == sweep
 
 
 @pytest.mark.parametrize("preset", sorted(p.stem for p in SWEEPS_DIR.glob("*.yaml")))

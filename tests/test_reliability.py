@@ -160,7 +160,7 @@ def test_a_failed_cell_is_computed_again_and_logged_once(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------------------- item 2: one directory per run
 def test_runs_started_in_the_same_second_get_their_own_directory(tmp_path, monkeypatch):
-    from gtsweep.cli.lifecycle import new_dir
+    from gtsweep.core.rundirs import new_dir
 
     monkeypatch.chdir(tmp_path)
     assert [new_dir("outputs/day/10-00-00") for _ in range(3)] == \

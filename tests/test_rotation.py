@@ -81,3 +81,23 @@ def test_plot_data_counts_bands_and_coinciding_curves():
     assert empty["x"] == 38.5 and np.isnan(empty[["rate", "ci_low", "ci_high"]].to_numpy(float)).all()
     entry = next(v for v in table.values if v["row"] == "ORB + ORB" and v["column"] == "90-105")
     assert entry["pairs"] == 2 and entry["ours"] == 0.5 and round(entry["ci_low"], 6) == 0.094531
+
+
+def test_a_large_grid_draws_its_best_outcomes_and_names_a_few_cells_of_a_shared_one():
+    # Ten detectors with distinct outcomes (k of 10 pairs found, k = 0..9) and five that share the outcome 9 of 10.
+    rotation = np.linspace(1.0, 179.0, 10)
+    views, summaries = {}, []
+    for k in range(10):
+        views[f"d{k}"] = pd.DataFrame({"rotation": rotation, "pose_success": (np.arange(10) < k).astype(float)})
+        summaries.append(summary(f"d{k}", f"d{k}"))
+    for k in range(5):
+        views[f"s{k}"] = views["d9"]
+        summaries.append(summary(f"s{k}", f"s{k}"))
+    table = rotation_table(summaries, views)
+    curves, _ = plot_curves(table, most=3)
+    names = list(dict.fromkeys(curves["curve"]))
+    assert len(names) == 3
+    assert names[0].startswith("6 cells, same outcome:\n") and names[0].endswith("\nand 3 more")
+    assert names[0].count("\n") == 4  # the header line, three cells, "and 3 more"
+    assert names[0].split("\n")[1:4] == ["d9 + d9", "s0 + s0", "s1 + s1"]
+    assert names[1:] == ["d8 + d8", "d7 + d7"]

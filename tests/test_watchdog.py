@@ -1,4 +1,4 @@
-"""The watchdog of a Ray sweep (gtsweep.cli.watchdog): silent when the sweep ends by itself (any Python way),
+"""The watchdog of a Ray sweep (gtsweep.tracking.watchdog): silent when the sweep ends by itself (any Python way),
 one line, a FAILED parent run and its cause when the sweep process vanishes (as when Ray ends it for a dead
 raylet). A real process stands in for the sweep; the raylet case itself is in test_failures.py (slow)."""
 from __future__ import annotations
@@ -19,7 +19,7 @@ def _sweep_process(tmp_path: Path, body: str) -> subprocess.CompletedProcess:
     script = textwrap.dedent(f"""
         import os, sys
         from pathlib import Path
-        from gtsweep.cli.watchdog import watched
+        from gtsweep.tracking.watchdog import watched
         with watched(Path({str(tmp_path / 'out')!r}), {RESUME!r}):
         """) + textwrap.indent(textwrap.dedent(body), "    ")
     return subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=cli_env(), capture_output=True,
@@ -69,7 +69,7 @@ def _ends(first: str) -> str | None:
     import threading
     import time
 
-    from gtsweep.cli.watchdog import wait_for_end
+    from gtsweep.tracking.watchdog import wait_for_end
 
     read, write = os.pipe()
     sweep, raylet = (subprocess.Popen(["sleep", "60"]) for _ in range(2))
@@ -100,7 +100,7 @@ def _ends(first: str) -> str | None:
 
 def test_a_kill_of_the_sweep_is_not_taken_for_a_lost_raylet():
     """kill -9 of the driver ends its raylet too, just after: the cause is the sweep's death, not the raylet's."""
-    from gtsweep.cli.watchdog import PROCESS_DIED, RAYLET_LOST
+    from gtsweep.tracking.watchdog import PROCESS_DIED, RAYLET_LOST
 
     assert _ends("sweep") == PROCESS_DIED
     assert _ends("raylet") == RAYLET_LOST

@@ -1,45 +1,23 @@
-"""The command line on top of every layer: ``python -m gtsweep``.
-
-Hydra's own parser reads the command line (its flags may stand between the overrides), and Hydra runs the
-application :mod:`gtsweep.cli.app` on its seams: ``every://all`` makes ``group=all`` an option
-(:mod:`gtsweep.core.searchpath`), the sweeper of ``-m`` globs over the search path and checks every job first
-(:mod:`gtsweep.cli.sweeper`), the run callback checks a single run's job and claims or reopens its output
-directory (:mod:`gtsweep.cli.runs`). Hydra's composition errors are said in one line with exit code 2
-(:mod:`gtsweep.cli.checks`).
-"""
+"""The command line on top of every layer, ``python -m gtsweep``: Hydra's own parser reads it and Hydra runs the
+application :mod:`gtsweep.cli.app` on its seams (docs/architecture.md, "The command line")."""
 from __future__ import annotations
 
-import contextlib
-import os
 import sys
+from unittest import mock
 
 from gtsweep.cli import completion, lifecycle
 from gtsweep.cli.checks import forget_notes, note_left_out, translate
 from gtsweep.cli.lifecycle import fail
 from gtsweep.cli.overrides import register_all
-from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, hydra_parser, search_path
+from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, search_path
 from gtsweep.core.configguard import check_config_files
 from gtsweep.core.errors import GtsweepError
 from gtsweep.core.interrupts import Interrupted, interruptible
 
 
-@contextlib.contextmanager
-def hydra_errors_raised():
-    """Hydra prints its errors and exits 1 unless ``HYDRA_FULL_ERROR`` is set: raised, they become one line."""
-    before = os.environ.get("HYDRA_FULL_ERROR")
-    os.environ["HYDRA_FULL_ERROR"] = "1"
-    try:
-        yield
-    finally:
-        if before is None:
-            os.environ.pop("HYDRA_FULL_ERROR", None)
-        else:
-            os.environ["HYDRA_FULL_ERROR"] = before
-
-
 def main(argv: list[str] | None = None) -> None:
     import yaml
-    from hydra._internal.utils import _run_hydra
+    from hydra._internal.utils import _run_hydra, get_args_parser
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
@@ -54,15 +32,15 @@ def main(argv: list[str] | None = None) -> None:
         fail(e)
     register_all()
     forget_notes()
-    with interruptible(), hydra_errors_raised():  # Ctrl-C while Hydra composes or imports: one line too
+    # Ctrl-C while Hydra composes or imports: one line too; Hydra's errors raised (not printed) become one line
+    with interruptible(), mock.patch.dict("os.environ", HYDRA_FULL_ERROR="1"):
         try:
             from gtsweep.cli.app import app
 
-            _run_hydra(args=parsed, args_parser=hydra_parser(), task_function=app, config_path=PRIMARY,
+            _run_hydra(args=parsed, args_parser=get_args_parser(), task_function=app, config_path=PRIMARY,
                        config_name=PRIMARY_NAME)
             note_left_out()  # --cfg, --info: nothing ran, the line still says what all left out
         except (HydraException, OmegaConfBaseException, yaml.YAMLError, GtsweepError) as e:
-
             fail(translate(e, parsed.overrides, configs(args)))
         except ValueError as e:  # Hydra refuses a combination of its flags (e.g. -m with --cfg): one line
             if not str(e).startswith(("Only one of", "The --resolve flag")):

@@ -1,18 +1,11 @@
-"""A job's config checked where Hydra composes it, and Hydra's composition errors said in gtsweep's one line.
-
-Composition does the config work (:mod:`gtsweep.cli.schemas`): a method's YAML and the command line are merged
-onto the method's defaults, and Hydra's struct mode refuses an unknown key or a value of the wrong type. Its
-error carries the key (``ConfigCompositionException.__cause__.full_key``); :func:`translate` says it in gtsweep's
-words: an option that is not selected, a method's unknown parameter, a near miss, a setting that moved. The
-ranges Hydra does not know are checked on the composed config (:func:`check_job`), once per job: by the sweeper
-for every job of ``-m`` before any runs (:mod:`gtsweep.cli.sweeper`), by the run callback for a single run.
-"""
+"""A job's config checked where Hydra composes it (:func:`check_job`: what Hydra's types do not check), and Hydra's
+composition errors said in gtsweep's one line (:func:`translate`: an option not selected, a method's unknown
+parameter, a near miss, a setting that moved)."""
 from __future__ import annotations
 
 import sys
 
-from gtsweep.cli.search import GRID_GROUPS
-from gtsweep.core.config import plain
+from gtsweep.core.config import METHOD_GROUPS, plain
 from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod, causes, nearest
 from gtsweep.core.factories import check_composed
 from gtsweep.core.registry import availability, left_out_line, require_available
@@ -29,7 +22,7 @@ KINDS = {"IntegerNode": "an int", "FloatNode": "a float", "BooleanNode": "a bool
 
 def choices(group: str, found: Configs) -> list[str]:
     """The valid options of a config group, a grid group's tuned ones included."""
-    tuned = [f"tuned/{name}" for name in found.options(f"{group}/tuned")] if group in GRID_GROUPS else []
+    tuned = [f"tuned/{name}" for name in found.options(f"{group}/tuned")] if group in METHOD_GROUPS else []
     return found.options(group) + tuned
 
 
@@ -56,7 +49,7 @@ def runnable_options(group: str, names: list[str]) -> list[str]:
 
 def note_left_out() -> None:
     """One line, once per command, for the methods ``all`` left out (which, and what adds them)."""
-    line = left_out_line([_left_out[group] for group in GRID_GROUPS if group in _left_out])
+    line = left_out_line([_left_out[group] for group in METHOD_GROUPS if group in _left_out])
     _left_out.clear()
     if line and line not in _noted:
         _noted.add(line)
@@ -74,7 +67,7 @@ def check_job(cfg, overrides, found: Configs) -> None:
     run, factories and plug-ins (:func:`gtsweep.core.factories.check_composed`), the ranges of the run settings and
     of its experiment kind's, the device."""
     check_single_groups(overrides, found)
-    require_available(*(REGISTRIES[g][n] for g in GRID_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
+    require_available(*(REGISTRIES[g][n] for g in METHOD_GROUPS for n in cfg.get(g) or () if n in REGISTRIES[g]))
     check_composed(cfg, overrides)
     check_settings(cfg, EXPERIMENTS.get((plain(cfg.get("experiment")) or {}).get("name")).settings)
     check_device(cfg)
@@ -139,7 +132,7 @@ def unknown_key(written: str, missing: str, cause, found: Configs) -> GtsweepErr
     """An override of ``written`` whose part ``missing`` (its first absent prefix) the composed config lacks."""
     parts, depth = written.split("."), len(missing.split("."))
     parent = cause.parent_node
-    if parts[0] in GRID_GROUPS and len(parts) > 1:
+    if parts[0] in METHOD_GROUPS and len(parts) > 1:
         unknown = unknown_method_key(parts, depth, parent, found)
         if unknown is not None:
             return unknown

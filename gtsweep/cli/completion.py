@@ -1,20 +1,7 @@
-"""Bash completion of ``gtsweep`` and ``python -m gtsweep``: config groups, their options (``tuned/`` ones
-included), list syntax, then Hydra's own completion for config keys.
-
-``eval "$(gtsweep -sc install=bash)"`` defines a bash function and registers it for ``gtsweep`` and for
-``python``/``python3`` (a ``python`` line that is not ``python -m gtsweep`` goes to the completion that was
-registered before, else to file names). On TAB the function runs ``<command> -sc query=bash`` with ``COMP_LINE``
-and ``COMP_POINT`` (as Hydra's script does); :func:`query` answers the value of a config group itself:
-
-- ``detector=s`` -> ``detector=sift``, ``detector=surf``; ``detector=tuned/`` -> ``detector=tuned/sift``, ...
-- ``detector=[s`` and ``detector=[sift,o`` -> ``detector=[sift,orb`` ... (options already in the list left out);
-  Hydra's choice sweep ``detector=sift,o`` the same way.
-
-Any other word (``dataset.n_``, ``det``) is left to Hydra's completion (its config keys). Hydra's own script
-needs an executable and removes ``=`` from the shell's ``COMP_WORDBREAKS``; this one leaves the shell's settings
-alone and hands bash each candidate from where bash's own current word starts (bash splits ``detector=s`` at
-``=``).
-"""
+"""Bash completion of ``gtsweep`` and ``python -m gtsweep`` (README, "Shell completion"): ``-sc install=bash``
+prints the script (completion.bash); on TAB it runs ``<command> -sc query=bash`` with ``COMP_LINE``/``COMP_POINT``,
+and :func:`query` answers a config group's value (``detector=s``, ``detector=[sift,o``, ``detector=tuned/``), whole
+words from where bash's current word starts; any other word is left to Hydra's completion (its config keys)."""
 from __future__ import annotations
 
 import os

@@ -34,13 +34,20 @@ def compose_config(overrides: list[str], config_dir: str | None = None):
 def register_all() -> None:
     """What composing gtsweep's configs needs in this process: its config sources, resolvers, schemas and
     sweeper; Hydra's warning about a missing ./tuned silenced."""
+    from hydra.core.plugins import Plugins
+
     from gtsweep.cli.checks import runnable_options
-    from gtsweep.cli.lifecycle import register_resolvers
-    from gtsweep.cli.schemas import register_schemas
     from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-    from gtsweep.core.searchpath import choose_options_with, ignore_missing_dir, register_help_resolver, register_sources
+    from gtsweep.core.rundirs import register_resolvers
+    from gtsweep.core.searchpath import (choose_options_with, ignore_missing_dir, register_help_resolver,
+                                         register_sources)
+    from gtsweep.orchestration.schemas import register_schemas
 
     ignore_missing_dir(str(DEFAULT_TUNED_ROOT))
     choose_options_with(runnable_options)
     for register in (register_sources, register_resolvers, register_help_resolver, register_schemas):
         register()
+    # after Hydra scanned its plugins (that re-imports its sweeper's module); stores the sweeper's config node too
+    from hydra_plugins.gtsweep_sweeper import GtsweepSweeper
+
+    Plugins.instance().register(GtsweepSweeper)  # also where Hydra's plugin discovery does not look (editable)

@@ -1,13 +1,6 @@
-"""What gtsweep's Hydra application sees: the command line as Hydra's own parser reads it, the config search path
-and the options of a config group, first match wins.
-
-The primary config (``pkg://gtsweep.cli.primary``, ``gtsweep.yaml``) sits alone in Hydra's main directory and
-declares ``hydra.searchpath``: ``./tuned`` (configs written by ``experiment=optimize``), ``pkg://gtsweep.conf``
-(the package's groups and presets) and ``every://all`` (each method group's ``all``). Hydra searches the main
-directory, then ``--config-dir``, then the search path; a ``hydra.searchpath=[...]`` on the command line replaces
-the primary's list, so gtsweep appends its own entries to it (:func:`with_searchpath`). A user's configs
-therefore win over the package's.
-"""
+"""The command line as Hydra's own parser reads it, the config search path it gives, and the configs on it (first
+match wins): the primary config's ``hydra.searchpath`` (``./tuned``, ``pkg://gtsweep.conf``, ``every://all``), after
+Hydra's main directory and ``--config-dir``; a user's ``hydra.searchpath=[...]`` gets gtsweep's entries appended."""
 from __future__ import annotations
 
 import argparse
@@ -17,26 +10,19 @@ from importlib import resources
 
 import yaml
 
-from gtsweep.core.searchpath import METHOD_GROUPS, Configs
+from gtsweep.core.searchpath import Configs
 
 PRIMARY_MODULE = "gtsweep.cli.primary"
 PRIMARY = f"pkg://{PRIMARY_MODULE}"
 PRIMARY_NAME = "gtsweep"
-#: The config groups that hold a list of methods and span the grid.
-GRID_GROUPS = METHOD_GROUPS
-
-
-def hydra_parser() -> argparse.ArgumentParser:
-    """Hydra's own parser of its command line (``hydra.main`` uses it)."""
-    from hydra._internal.utils import get_args_parser
-
-    return get_args_parser()
 
 
 def hydra_args(argv) -> argparse.Namespace:
     """``argv`` as Hydra's parser reads it, Hydra's flags anywhere between the overrides; a user's
     ``hydra.searchpath`` completed with gtsweep's entries."""
-    args = hydra_parser().parse_intermixed_args(list(argv))
+    from hydra._internal.utils import get_args_parser
+
+    args = get_args_parser().parse_intermixed_args(list(argv))
     args.overrides = with_searchpath(args.overrides)
     return args
 
@@ -89,7 +75,3 @@ def configs(argv=()) -> Configs:
         args = hydra_args(())
     return _configs(search_path(args), os.getcwd())
 
-
-def options(group: str, argv=()) -> list[str]:
-    """The options of a config group on the search path of ``argv`` (user directories included)."""
-    return configs(argv).options(group)

@@ -1,21 +1,16 @@
-"""The sweeper of ``-m``: Hydra's basic sweeper, with ``group=glob(...)`` over the whole search path and every
-job composed and checked before the first one runs.
-
-Hydra's own glob lists the options of its main directory only; here a glob of a config group is replaced by the
-options it matches on the search path the multirun composes from (:func:`gtsweep.core.searchpath.options_of`),
-as a choice sweep. Hydra's sweeper composes every job of a batch before launching it anyway
-(``validate_batch_is_legal``); here it is every job of every batch, each checked (:func:`gtsweep.cli.checks.
-check_job`), and a mistake is one line and exit code 2 before any job runs. Only then is the multirun's directory
-claimed (:func:`gtsweep.cli.runs.start_sweep_dir`) and its MLflow run opened.
-"""
+"""The sweeper of ``-m`` (docs/architecture.md): Hydra's basic sweeper, with ``group=glob(...)`` over the whole
+search path, and every job of every batch composed and checked before the first one runs."""
 from __future__ import annotations
 
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 
 from gtsweep.cli.checks import SINGLE_GROUPS, check_job, translate
-from gtsweep.cli.search import GRID_GROUPS
+from gtsweep.cli.lifecycle import fail
+from gtsweep.cli.runs import start_sweep_dir
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.searchpath import Configs, configs_of_sources, options_of
+from gtsweep.tracking.multirun import open_multirun_run
 
 
 def globbed(override: str, found: Configs) -> str:
@@ -24,7 +19,7 @@ def globbed(override: str, found: Configs) -> str:
     from hydra.errors import HydraException
 
     group, _, value = override.partition("=")
-    if group not in (*GRID_GROUPS, *SINGLE_GROUPS) or not value.startswith("glob("):
+    if group not in (*METHOD_GROUPS, *SINGLE_GROUPS) or not value.startswith("glob("):
         return override
     try:
         matches = OverridesParser.create().parse_override(override).value().filter(options_of(found, group))
@@ -36,14 +31,11 @@ def globbed(override: str, found: Configs) -> str:
 
 
 class CheckingSweeper(BasicSweeper):
-    """Globs over the search path; every job checked before any runs (see the module)."""
+    """Globs over the search path; every job checked before any runs, then the multirun's directory claimed and
+    its MLflow run opened."""
 
     def sweep(self, arguments):
         from hydra.core.override_parser.overrides_parser import OverridesParser
-
-        from gtsweep.cli.multirun import open_multirun_run
-        from gtsweep.cli.lifecycle import fail
-        from gtsweep.cli.runs import start_sweep_dir
 
         found = configs_of_sources(self.config.hydra.runtime.config_sources)
         try:
@@ -60,8 +52,7 @@ class CheckingSweeper(BasicSweeper):
             except Exception as e:  # noqa: BLE001 - Hydra's and OmegaConf's errors, translated
                 fail(translate(e, job, found))
         try:
-            start_sweep_dir(self.config)
-            open_multirun_run(self.config)
+            open_multirun_run(self.config.mlflow, start_sweep_dir(self.config), self.config.hydra.overrides.task)
         except GtsweepError as e:
             fail(e)
         return super().sweep(arguments)

@@ -7,6 +7,10 @@ from typing import Any
 
 from gtsweep.core.errors import BadInput
 
+#: The config groups that hold methods, a grid dimension each (only these have tuned files), in the order of a
+#: result's method columns.
+METHOD_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+
 
 def plain(node, where: str = "") -> Any:
     """A config node as plain Python containers, interpolations resolved; other values are returned as they are.

@@ -95,7 +95,7 @@ def check_composed(cfg, overrides) -> None:
     name written out (not an interpolation) that :func:`resolve` knows; their interpolations resolve."""
     from omegaconf import DictConfig, OmegaConf
 
-    from gtsweep.core.searchpath import METHOD_GROUPS
+    from gtsweep.core.config import METHOD_GROUPS
 
     plugins.enable(plugins.check_named(cfg.get("plugins"), overrides))
     for group in METHOD_GROUPS:

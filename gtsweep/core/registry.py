@@ -94,7 +94,9 @@ class Method:
 
     def build(self, overrides: Mapping[str, Any] | None = None):
         """``create(**params)``; a method that is not installed or rejects its parameters is a one-line error."""
-        params = self.params(overrides)
+        return self._create(self.params(overrides))
+
+    def _create(self, params: Mapping[str, Any]):
         require_available(self)
         try:
             return self.create(**params)
@@ -109,7 +111,7 @@ class Method:
         """Pre-flight: the full parameters, after building the method once and running its :attr:`probe`, so that
         a parameter the method rejects is one line before any work."""
         params = self.params(overrides)
-        built = self.build(params)
+        built = self._create(params)
         if self.probe is not None:
             try:
                 self.probe(built)

@@ -18,8 +18,8 @@ from hydra.core.object_type import ObjectType
 from hydra.core.plugins import Plugins
 from hydra.plugins.config_source import ConfigLoadError, ConfigResult, ConfigSource
 
-#: The config groups that hold methods (a grid dimension each); only these have tuned files.
-METHOD_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+from gtsweep.core.config import METHOD_GROUPS
+
 
 
 class TunedMethods(ConfigSource):

@@ -11,15 +11,15 @@ from typing import Mapping
 import cv2
 import numpy as np
 
-#: Ranges [low, high] each parameter is drawn from (uniform; gamma log-uniform).
-DEFAULT_RANGES = {"gamma": [0.6, 1.6], "gain": [0.8, 1.15], "noise": [2.0, 5.0], "blur": [0.0, 1.0],
-                  "vignetting": [0.1, 0.4]}
+#: The parameters, each drawn from a range [low, high] (uniform; gamma log-uniform); the synthetic data set's
+#: ranges are its ``photometric`` option (conf/dataset/synthetic.yaml).
+PARAMETERS = ("gamma", "gain", "noise", "blur", "vignetting")
 
 
 def draw(rng: np.random.Generator, ranges: Mapping[str, list]) -> dict[str, float]:
-    """One set of photometric parameters from ``ranges`` (keys of :data:`DEFAULT_RANGES`)."""
+    """One set of photometric parameters from ``ranges`` (keys: :data:`PARAMETERS`)."""
     params = {}
-    for key in DEFAULT_RANGES:
+    for key in PARAMETERS:
         low, high = (float(v) for v in ranges[key])
         if key == "gamma":
             params[key] = float(np.exp(rng.uniform(np.log(low), np.log(high))))

@@ -22,10 +22,11 @@ from typing import Mapping
 
 import cv2
 import numpy as np
+import yaml
 
 from gtsweep.core.atomic import respect_umask
 from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.core.paths import DEFAULT_CACHE_DIR
+from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import capture, floors, geometry, layout, photometric
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset, Pair, Sample, fingerprint_of
@@ -33,40 +34,13 @@ from gtsweep.datasets.pairing import texture_rng
 
 #: Bump when rendering changes, so old caches are not reused.
 GENERATOR_VERSION = 2
-PAIR_LAWS = {
-    "incremental": {"overlap_mean": 0.227, "overlap_concentration": 7.0, "overlap_min": 0.017,
-                    "overlap_max": 0.9, "rotation_mean": 3.0, "rotation_max": 12.0},
-    "absolute": {"overlap_mean": 0.437, "overlap_concentration": 6.0, "overlap_min": 0.05,
-                 "overlap_max": 0.95, "rotation_mean": 120.0, "rotation_max": 180.0},
-}
+#: The options and their defaults, written once: conf/dataset/synthetic.yaml (its comments say what each does).
+DEFAULTS = {key: value for key, value in yaml.safe_load((CONF_DIR / "dataset" / "synthetic.yaml").read_text()).items()
+            if key != "loader"}
+PAIR_LAWS = {kind: DEFAULTS[kind] for kind in ("incremental", "absolute")}
 #: Keys added after the first release: at their default (None) they are left out of the fingerprint, so caches,
 #: studies and results of configs without them stay as they were. Law keys: layout.rotation_targets.
-LATER_KEYS = {"rotation_law": None, "crossing": None, "heading_noise_deg": None}
-for _law in PAIR_LAWS.values():
-    _law.update(LATER_KEYS)
-DEFAULTS = {
-    "name": "synthetic",            # the data set's name in results and reports
-    "seed": 0,
-    "cache_dir": str(DEFAULT_CACHE_DIR),
-    "textures": list(floors.FLOOR_TYPES),
-    "view_size": [640, 480],
-    "floor_size": None,
-    "px_per_mm": floors.MICROGPS_PX_PER_MM,
-    "photo_upsample": 3.0,
-    "n_optimisation": 3,
-    "n_synthetic": 4,
-    "n_incremental": 6,
-    "n_absolute": 6,
-    "scale_jitter": 0.02,
-    "sensor_noise": 1.0,
-    "incremental": PAIR_LAWS["incremental"],
-    "absolute": PAIR_LAWS["absolute"],
-    "photometric": photometric.DEFAULT_RANGES,
-    "separate_optimisation": None,  # true: the floor grows until optimisation views have their own band
-    "capture": None,                # per-frame capture physics (capture.FRAME_DEFAULTS); null = off
-    "day": None,                    # another day's floor for absolute test views (capture.DAY_DEFAULTS)
-    "skip_first": None,             # per split, the first images or pairs left out (not rendered): {synthetic: 16}
-}
+LATER_KEYS = ("rotation_law", "crossing", "heading_noise_deg")
 NEW_OPTIONS = ("separate_optimisation", "capture", "day", "skip_first")
 SPLITS = ("optimisation", "synthetic", "incremental", "absolute")
 #: Options that do not change the rendered content.

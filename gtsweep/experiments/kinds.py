@@ -26,7 +26,7 @@ from gtsweep.experiments.pairs import settings as pair_settings
 from gtsweep.experiments.pairs.cells import PAIRS
 from gtsweep.experiments.pairs.report import report as pair_report
 from gtsweep.experiments.pairs.summary import format_outcome
-from gtsweep.orchestration.settings import SCHEMA_GROUP, typed_settings
+from gtsweep.orchestration.schemas import SCHEMA_GROUP, typed_settings
 from gtsweep.orchestration.skeleton import CellWork, SweepOutcome
 from gtsweep.orchestration.skeleton import run_sweep as run_cells
 from gtsweep.report.combine import combine

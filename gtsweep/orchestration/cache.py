@@ -27,6 +27,7 @@ import numpy as np
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import plain
 from gtsweep.evaluation.evaluate import detect_raw, select_detected
+from gtsweep.orchestration.settings import default
 
 # The pseudo-selector under which a detector's unselected output is cached (files raw-<key>.npz).
 RAW = "raw"
@@ -226,7 +227,7 @@ def cache_state(cfg: Mapping) -> tuple[str | None, str]:
     """The keypoint cache's absolute directory (``cache.dir``) and a note for run.json. None when
     ``cache.enabled`` is false, or when the directory cannot be written: then one warning line on stderr."""
     cache_cfg = plain(cfg.get("cache")) or {}
-    if not cache_cfg.get("enabled", True):
+    if not cache_cfg.get("enabled", default("cache.enabled")):
         return None, "off: cache.enabled=false"
     directory = Path(cache_cfg["dir"]).resolve()
     try:

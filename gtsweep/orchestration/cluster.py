@@ -8,6 +8,7 @@ are printed and kept for ``run.json`` (:func:`record_cluster`, :func:`cluster_re
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import logging
 import os
@@ -17,9 +18,10 @@ import socket
 import sys
 import time
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, NoReturn
 
 from gtsweep.core.errors import BadInput
+from gtsweep.orchestration.settings import default
 
 log = logging.getLogger(__name__)
 
@@ -62,11 +64,8 @@ def check_address(runner_cfg: Mapping) -> None:
     within ``runner.connect_timeout_s``: accept a TCP connection and answer gRPC's HTTP/2 greeting. Ray itself
     retries "Failed to connect to GCS" for minutes, and hangs on a port that accepts but is not Ray. ``local`` and
     ``auto`` need no probe (``auto`` is resolved and refused at once by Ray when no cluster runs)."""
-    from gtsweep.orchestration.settings import SETTINGS
-
     address = cluster_address(runner_cfg)
-    timeout = SETTINGS["runner.connect_timeout_s"].check("runner.connect_timeout_s",
-                                                         runner_cfg.get("connect_timeout_s", 10))
+    timeout = runner_cfg.get("connect_timeout_s", default("runner.connect_timeout_s"))  # range: check_settings
     if address in ("local", "auto"):
         return
     host, _, port = address.split("://")[-1].rpartition(":")
@@ -161,9 +160,21 @@ def end_ray_processes(ray_dir: str | None, owner: int | None = None) -> None:
         time.sleep(STOP_PAUSE_S)
 
 
-def ray_stopped() -> bool:
-    """Whether :func:`stop_workers` ended this process's Ray."""
-    return _stopped["ray"]
+def leave(code: int | str | None) -> NoReturn:
+    """End the process with a :class:`SystemExit`'s ``code``. After :func:`stop_workers` ended Ray, the process
+    skips C's exit handlers: once its raylet and GCS are gone, Ray's core-worker exit handler
+    (``CoreWorkerProcess::HandleAtExit``, Ray 2.60) waits for the dead GCS and then crashes the process (SIGSEGV:
+    exit status -11 instead of 130). Python's own exit work (atexit functions, logging, the streams) is done first."""
+    if not _stopped["ray"]:
+        sys.exit(code)
+    if isinstance(code, str):  # sys.exit("message"): Python prints it
+        print(code, file=sys.stderr)
+    atexit._run_exitfuncs()
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code if isinstance(code, int) else (0 if code is None else 1))
 
 
 #: Ray names a node's session after the process that starts it: ``session_<date>_<time>_<microseconds>_<pid>``

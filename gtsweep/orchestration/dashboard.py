@@ -1,6 +1,7 @@
 """Whether Ray's dashboard can start here: checked before anything is created (``runner.dashboard=true``)."""
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Mapping
 
 from gtsweep.core.errors import BadInput
@@ -21,6 +22,6 @@ def _dashboard_missing() -> str | None:
         from ray._private.utils import get_dashboard_dependency_error
 
         error = get_dashboard_dependency_error()
-    except ImportError as e:  # a Ray without that helper: try the dashboard's own package
-        error = e if importlib.util.find_spec("aiohttp") is None else None
+    except ImportError:  # a Ray without that helper: look for the dashboard's own package
+        error = "No module named 'aiohttp'" if importlib.util.find_spec("aiohttp") is None else None
     return None if error is None else str(error)

@@ -32,6 +32,7 @@ from gtsweep.orchestration.cluster import (
     this_machines_cluster,
 )
 from gtsweep.orchestration.dashboard import check_dashboard
+from gtsweep.orchestration.settings import default
 
 BACKENDS = ("ray", "serial")
 log = logging.getLogger(__name__)
@@ -39,7 +40,7 @@ log = logging.getLogger(__name__)
 
 def backend(runner_cfg: Mapping) -> str:
     """``runner.backend``, checked: ``ray`` or ``serial``."""
-    name = runner_cfg.get("backend", "ray")
+    name = runner_cfg.get("backend", default("runner.backend"))
     if name not in BACKENDS:
         raise BadInput(f"runner.backend must be one of {', '.join(BACKENDS)}, got {name!r}")
     return name
@@ -139,7 +140,7 @@ class RayExecutor:
 
     def __init__(self, runner_cfg: Mapping, retries: int = 3):
         connect(runner_cfg)
-        self.threads = runner_cfg.get("opencv_threads", 1)
+        self.threads = runner_cfg.get("opencv_threads", default("runner.opencv_threads"))
         self.retries = retries
         self.remotes: dict[tuple, Any] = {}
         self.pending: dict[Any, Any] = {}  # ObjectRef of a tagged task -> tag
@@ -181,7 +182,7 @@ class RayExecutor:
                 try:
                     result = ray.get(ref)
                 except ray.exceptions.LocalRayletDiedError:
-                    raise  # this process's own raylet: the cluster is lost, not the cell (gtsweep.cli.lifecycle)
+                    raise  # this process's own raylet: the cluster is lost, not the cell (core.errors.failure_cause)
                 except ray.exceptions.RayError as e:  # the task raised, or its worker died
                     cause = getattr(e, "cause", None)
                     result = {"error": describe_error(cause) if isinstance(cause, Exception)
@@ -211,10 +212,10 @@ def ray_options(runner_cfg: Mapping) -> dict:
     """``ray.init`` options from ``runner``: the dashboard only when asked (``runner.dashboard=true``, which needs
     ``pip install 'ray[default]'``), Ray's own log lines at ``runner.ray_log_level`` (default ``error``: its
     warnings, such as the token-authentication notice of every local start, only when asked)."""
-    level = runner_cfg.get("ray_log_level") or "error"
+    level = runner_cfg.get("ray_log_level") or default("runner.ray_log_level")
     if level not in RAY_LOG_LEVELS:
         raise BadInput(f"runner.ray_log_level must be one of {', '.join(RAY_LOG_LEVELS)}, got {level!r}")
-    dashboard = bool(runner_cfg.get("dashboard", False))
+    dashboard = bool(runner_cfg.get("dashboard", default("runner.dashboard")))
     check_dashboard(runner_cfg)
     options = {"include_dashboard": dashboard, "logging_level": RAY_LOG_LEVELS[level], "log_to_driver": True}
     if dashboard:

@@ -2,9 +2,9 @@
 cell's key, methods, configuration and hash, written once), and the grid groups resolved from a config.
 
 A composed config brings each method's full parameters (Hydra merged its YAML and the command line onto its
-defaults: ``gtsweep.cli.schemas``); :meth:`~gtsweep.core.registry.Method.params` checks them strictly (and fills in
-the defaults for a config that has only some: a script's, a user's file without its schema), and the method is
-built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares a
+defaults: ``gtsweep.orchestration.schemas``); :meth:`~gtsweep.core.registry.Method.params` checks them strictly (and
+fills in the defaults for a config that has only some: a script's, a user's file without its schema), and the
+method is built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares a
 new method (:meth:`~gtsweep.core.registry.Registry.declare`); the grid carries these declarations
 (:attr:`MethodGrid.declared`) to every process that runs its tasks. A cell's identity is its methods and their full
 configuration, hashed; a resumed sweep keeps a finished cell only when that hash is unchanged. Each kind builds
@@ -22,9 +22,9 @@ from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
-from gtsweep.stages.match import MATCHERS
+from gtsweep.stages.match import MATCHERS, SURVEY_MATCHER
 from gtsweep.stages.match import applicability as matcher_applicability
-from gtsweep.stages.pose import ESTIMATORS
+from gtsweep.stages.pose import ESTIMATORS, SURVEY_ESTIMATOR
 from gtsweep.stages.select import SELECTORS
 
 TRANSFORM_KINDS = ("synthetic", "pairs")
@@ -33,7 +33,7 @@ PAIR_TRANSFORMS = ("incremental", "absolute")
 REGISTRIES: dict[str, Registry] = {"detector": DETECTORS, "selector": SELECTORS, "descriptor": DESCRIPTORS,
                                    "transform": TRANSFORMS, "matcher": MATCHERS, "estimator": ESTIMATORS}
 #: The survey's matcher and estimator: a config without these groups (a script's, an older one) uses them.
-SURVEY_METHODS = {"matcher": "bf_ratio", "estimator": "ransac"}
+SURVEY_METHODS = {"matcher": SURVEY_MATCHER, "estimator": SURVEY_ESTIMATOR}
 
 
 #: The grid groups in the order a cell names its methods.
@@ -147,8 +147,8 @@ def resolve_group(cfg: Mapping, group: str, search_space: bool = False) -> dict[
                 resolved[name] = settings
                 continue
         method = registry.get(name)
-        settings["params"] = method.params(settings.get("params"))
-        for params in _variants(cfg, group, settings):
+        settings["params"] = method.check(settings.get("params"))  # a script's partial params: defaults filled in
+        for params in _variants(cfg, group, settings)[1:]:  # a descriptor's per-detector ones
             method.check(params)
         resolved[name] = settings
     return resolved

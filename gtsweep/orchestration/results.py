@@ -22,6 +22,8 @@ from pathlib import Path
 import pandas as pd
 
 from gtsweep.core.atomic import write_atomically
+from gtsweep.core.config import METHOD_GROUPS
+from gtsweep.core.rundirs import CELLS, RESULTS
 from gtsweep.evaluation import schema
 
 
@@ -81,7 +83,7 @@ class ResultStore:
 
     def __init__(self, directory: str | os.PathLike):
         self.directory = Path(directory)
-        self.cells_dir = self.directory / "cells"
+        self.cells_dir = self.directory / CELLS
 
     def complete(self, key: str, cell_hash: str) -> dict | None:
         """The summary of a finished cell (ok or na) with this configuration hash, else None."""
@@ -123,12 +125,11 @@ class ResultStore:
     def write_table(self, summaries: list[dict]) -> Path:
         """``results.csv``: one row per cell with its methods, status and mean metrics."""
         table = summary_table(summaries)
-        path = self.directory / "results.csv"
+        path = self.directory / RESULTS
         write_atomically(path, table.to_csv(index=False))
         return path
 
 
-METHOD_COLUMNS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
 #: Method columns beyond the survey's pairing: tables show them only when a sweep has several values of one.
 VARIANT_COLUMNS = ("matcher", "estimator")
 
@@ -160,6 +161,6 @@ def summary_table(summaries: list[dict]) -> pd.DataFrame:
     table = pd.DataFrame.from_records(records)
     measured = {m for s in summaries for m in s.get("metrics") or {}}
     # fixed order: a kept cell's methods come back from its JSON sorted, a fresh one's in grid order
-    first = [c for c in (*METHOD_COLUMNS, "status", "reason") if c in table.columns]
+    first = [c for c in (*METHOD_GROUPS, "status", "reason") if c in table.columns]
     others = sorted(c for c in table.columns if c not in measured and c not in first)
     return table[first + others + schema.ordered(measured)]

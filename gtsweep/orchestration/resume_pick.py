@@ -7,12 +7,16 @@ record), newest by its last write, and says which one and why; a directory that 
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from gtsweep.core.rundirs import CELLS, PARENT_RECORD, RUN_RECORD, SWEEP_RECORD
+
 #: Files of a run that started: its MLflow parent run and its run record (cells are under ``cells/``).
-RUN_FILES = ("mlflow.json", "run.json")
+RUN_FILES = (PARENT_RECORD, RUN_RECORD)
 
 
 @dataclass(frozen=True)
@@ -24,7 +28,12 @@ class Pick:
 
 
 def finished_cells(directory: Path) -> int:
-    return len(list((directory / "cells").glob("*.json")))
+    return len(list((directory / CELLS).glob("*.json")))
+
+
+def kept_cells(directory: Path) -> str:
+    """What a stopped run keeps, in words."""
+    return f"{finished_cells(directory)} finished cell(s) kept in {directory}"
 
 
 def holds_run(directory: Path) -> bool:
@@ -34,7 +43,7 @@ def holds_run(directory: Path) -> bool:
 
 def last_write(directory: Path) -> float:
     """When the run in ``directory`` last wrote: its newest cell or run file."""
-    files = [*(directory / "cells").glob("*.json"), *(directory / n for n in RUN_FILES), directory / "sweep.json"]
+    files = [*(directory / CELLS).glob("*.json"), *(directory / n for n in RUN_FILES), directory / SWEEP_RECORD]
     return max((f.stat().st_mtime for f in files if f.exists()), default=0.0)
 
 
@@ -56,3 +65,20 @@ def _key(record: Path) -> str | None:
         return json.loads(record.read_text()).get("key")
     except (OSError, ValueError, AttributeError):
         return None
+
+
+def command_key(overrides) -> str:
+    """What identifies "the same command" for resume: its overrides, without resume and hydra settings."""
+    kept = sorted(o for o in overrides if not o.startswith(("resume=", "hydra.")))
+    return hashlib.sha256(json.dumps(kept).encode()).hexdigest()[:16]
+
+
+def earlier_run(key: str, multirun: bool, root: Path | None = None) -> Path | None:
+    """The newest output directory (a multirun's, for ``multirun``) of an earlier command with ``key`` that holds a
+    run (:func:`pick`, which says which and why)."""
+    pattern = f"multirun/*/*/*/{SWEEP_RECORD}" if multirun else f"outputs/*/*/{SWEEP_RECORD}"
+    picked = pick(list((root or Path.cwd()).glob(pattern)), key)
+    print(f"gtsweep: {picked.why}", file=sys.stderr)
+    if picked.directory is None:
+        return None
+    return picked.directory.parent if multirun else picked.directory

@@ -1,5 +1,5 @@
-"""The run settings a sweep reads (runner, seed, cache, mlflow, report) with their allowed values, declared once, and
-typed nodes of such settings for Hydra's ConfigStore (an experiment kind's settings are its entry's).
+"""The run settings a sweep reads (runner, seed, cache, mlflow, report) with their allowed values and defaults,
+declared once (an experiment kind's settings are its entry's: ``gtsweep.experiments``).
 
 :func:`check_settings` runs before any work: a value outside its range is one line and exit code 2, never a
 cell labelled "not applicable" or an "ok" cell with wrong numbers (``experiment.ratio=0`` would keep no match).
@@ -7,18 +7,15 @@ Method parameters and transform strengths are checked by their registries (:mod:
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Mapping
 
-from omegaconf import MISSING
-from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode, StringNode, ValueNode
+import yaml
 
 from gtsweep.core.config import plain
+from gtsweep.core.paths import CONF_DIR
 from gtsweep.core.ranges import Choice, Range, check_all
 
 _COUNT = Range(1, None, integer=True)
-#: Where gtsweep's structured configs live in Hydra's ConfigStore (``schema/<group>/<name>``, ``schema/run``).
-SCHEMA_GROUP = "schema"
-NODES = {bool: BooleanNode, int: IntegerNode, float: FloatNode, str: StringNode}
 
 SETTINGS = {
     "seed": Range(0, None, integer=True),
@@ -42,46 +39,25 @@ SETTINGS = {
 }
 
 
+#: The sections of the primary config that hold run settings.
+RUN_SECTIONS = ("seed", "experiment", "runner", "cache", "mlflow", "report")
+#: Their defaults, written once: conf/config.yaml (a caller that gives only some settings gets the rest here).
+_PRIMARY = yaml.safe_load((CONF_DIR / "config.yaml").read_text())
+
+
+def default(key: str):
+    """The default of the run setting ``key`` (``runner.backend``): conf/config.yaml's."""
+    section, name = key.split(".")
+    return _PRIMARY[section][name]
+
+
 def check_settings(cfg: Mapping, experiment: Mapping[str, object] | None = None) -> None:
     """Raise a one-line BadInput for the first run setting of ``cfg`` outside its allowed values, and the first
     ``experiment.*`` value outside the rules of its kind (``experiment``: ``{key: rule}``, its entry's settings)."""
-    values = {key: plain(cfg.get(key)) for key in ("seed", "experiment", "runner", "cache", "mlflow", "report")
-              if key in cfg}
+    values = {key: plain(cfg.get(key)) for key in RUN_SECTIONS if key in cfg}
     check_all(values, SETTINGS)
     check_all(values.get("experiment") or {}, experiment or {}, prefix="experiment.")
     if (values.get("runner") or {}).get("dashboard"):  # its packages, before anything is created
         from gtsweep.orchestration.dashboard import check_dashboard
 
         check_dashboard(values["runner"])
-
-
-def typed(value: Any) -> ValueNode:
-    """A node that admits values of the kind of ``value`` (an int where a float stands; None stays untyped)."""
-    return NODES.get(type(value), AnyNode)(value)
-
-
-def setting_node(rule) -> ValueNode | None:
-    """An empty node of the type a setting's rule admits (None for a rule without one type, e.g. a list)."""
-    if isinstance(rule, Range):
-        return (IntegerNode if rule.integer else FloatNode)(MISSING, is_optional=rule.optional)
-    if isinstance(rule, Choice):
-        kinds = {type(choice) for choice in rule.options if choice is not None}
-        if len(kinds) == 1 and kinds.pop() in (bool, str):
-            return NODES[type(next(c for c in rule.options if c is not None))](MISSING, is_optional=rule.optional)
-    return None
-
-
-def typed_settings(rules: Mapping[str, object]) -> dict:
-    """The typed nodes of dotted settings, nested (``runner.num_cpus`` -> ``{runner: {num_cpus}}``): what Hydra
-    merges a config's values onto, so that a value of the wrong type is Hydra's own error (it has no ranges)."""
-    schema: dict = {}
-    for key, rule in rules.items():
-        node = setting_node(rule)
-        if node is None:
-            continue
-        *parents, leaf = key.split(".")
-        section = schema
-        for parent in parents:
-            section = section.setdefault(parent, {})
-        section[leaf] = node
-    return schema

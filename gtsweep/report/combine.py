@@ -25,7 +25,9 @@ from typing import Callable
 
 import pandas as pd
 
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.core.errors import GtsweepError
+from gtsweep.core.rundirs import COMBINED, REPORT
 from gtsweep.evaluation import schema
 from gtsweep.orchestration.results import VARIANT_COLUMNS, summary_table
 from gtsweep.report.breakdown import mean_summary
@@ -39,7 +41,6 @@ SEED = re.compile(r"^\+*(?P<key>(?:dataset\.)?seed)=(?P<value>.*)$")
 VARIES = {"dataset.seed": "dataset.seed: the images and pairs are drawn anew for each repeat",
           "seed": "seed: RANSAC's and the synthetic transforms' draws only, on the same images and pairs (fixed by "
                   "dataset.seed; -m dataset.seed=0,1 varies them)"}
-METHODS = ["detector", "selector", "descriptor", "transform", "matcher", "estimator"]
 
 
 def jobs_of(sweep_dir: Path) -> list[dict]:
@@ -76,7 +77,7 @@ def combine(sweep_dir: str | Path, write: ReportWriter, alpha: float = ALPHA) ->
     jobs = jobs_of(sweep_dir)
     if not jobs:
         raise GtsweepError(f"no job of the multirun in '{sweep_dir}' wrote results")
-    out = sweep_dir / "combined"
+    out = sweep_dir / COMBINED
     out.mkdir(parents=True, exist_ok=True)
     by_job = {job["job"]: load_summaries(job["dir"]) for job in jobs}
     rows = pd.concat([summary_table(by_job[job["job"]]).assign(setting=job["setting"], seed=job["seed"],
@@ -90,7 +91,7 @@ def combine(sweep_dir: str | Path, write: ReportWriter, alpha: float = ALPHA) ->
     settings = sorted({job["setting"] for job in jobs})
     for setting in settings:
         cells, views = _repeats(jobs, by_job, setting)
-        target = out / "report" / (_slug(setting) if len(settings) > 1 else "")
+        target = out / REPORT / (_slug(setting) if len(settings) > 1 else "")
         files += write([mean_summary(v) for v in cells.values()], target,
                        {k: pd.concat(v, ignore_index=True) for k, v in views.items()}, load_scale(jobs[0]["dir"]))
     files += write_settings(out, jobs, by_job, {job["job"]: load_views(job["dir"]) for job in jobs}, alpha)
@@ -112,7 +113,7 @@ def _repeats(jobs: list[dict], by_job: dict[str, list[dict]], setting: str) -> t
 def repeat_table(rows: pd.DataFrame) -> pd.DataFrame:
     """Per setting and cell: mean and sample standard deviation of every metric over the repeats, and n."""
     metrics = schema.ordered(c for c in rows.columns if c in schema.METRICS)
-    keys = ["setting", *[c for c in METHODS if c in rows]]
+    keys = ["setting", *[c for c in METHOD_GROUPS if c in rows]]
     ok = rows[rows["status"] == "ok"].copy()
     for metric in metrics:
         ok[metric] = pd.to_numeric(ok[metric], errors="coerce")
@@ -134,7 +135,7 @@ def headline_markdown(summary: pd.DataFrame, jobs: list[dict], headlines) -> str
         part = summary[summary[f"{metric}_mean"].notna()]
         if part.empty:
             continue
-        columns = [c for c in ["setting", *METHODS]
+        columns = [c for c in ["setting", *METHOD_GROUPS]
                    if c in part and (c not in VARIANT_COLUMNS or part[c].nunique() > 1)]
         header = f"{metric} ({schema.METRICS[metric].unit}): mean ± std (n)"
         lines += [f"{metric}:", "", "| " + " | ".join([*columns, header]) + " |", "|" + "---|" * (len(columns) + 1)]

@@ -23,9 +23,6 @@ UNORIENTED = frozenset({"agast", "censure", "fast", "gftt", "harris_laplace", "m
 #: "ORB, BRIEF, LATCH, SIFT, and LIFT descriptors rely on available orientation information" (5.2); LIFT's
 #: descriptor has no counterpart here.
 PLAIN_DESCRIPTORS = ("orb", "brief", "latch", "sift")
-#: The survey's matcher and pose estimator (section 5: brute force + ratio test 0.7, RANSAC): with several
-#: variants in a run, the findings are judged on the cells of this one (never pooled across variants).
-SURVEY_VARIANT = {"matcher": "bf_ratio", "estimator": "ransac"}
 
 
 class Data:

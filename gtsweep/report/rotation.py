@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from gtsweep.evaluation.statistics import wilson_interval
+from gtsweep.orchestration.grid import SURVEY_METHODS
 from gtsweep.report.labels import label
 from gtsweep.report.samples import Views
 from gtsweep.report.tables import Table, write_tables
@@ -25,6 +26,8 @@ EDGES = np.arange(0, 180 + BIN_DEG, BIN_DEG)
 TRANSFORM = "absolute"
 PAIRS_ROW = "pairs per bin"
 DODGE_DEG = 8.0  # curves that would hide each other spread over this much of a bin's 15 degrees
+MAX_CURVES = 8  # a larger grid's plot draws its best outcomes (by mean pose success over its pairs); the table has all
+NAMES_SHOWN = 3  # a shared outcome's legend entry names this many of its cells
 
 
 def bin_labels() -> list[str]:
@@ -34,8 +37,7 @@ def bin_labels() -> list[str]:
 def method_label(methods: dict) -> str:
     """``ALIKED-n16rot + ALIKED-n16rot, LightGlue`` (the matcher and estimator only when not the survey's)."""
     text = f"{label(methods['detector'])} + {label(methods['descriptor'])}"
-    extras = [label(methods[k]) for k, survey in (("matcher", "bf_ratio"), ("estimator", "ransac"))
-              if methods.get(k) and methods[k] != survey]
+    extras = [label(methods[k]) for k, survey in SURVEY_METHODS.items() if methods.get(k) and methods[k] != survey]
     return text + (", " + ", ".join(extras) if extras else "")
 
 
@@ -81,20 +83,37 @@ def rotation_table(summaries: list[dict], views: Views | None) -> Table | None:
                  note="A bin's entry is the mean pose success of its pairs; the last row counts the pairs.")
 
 
-def plot_curves(table: Table) -> tuple[pd.DataFrame, pd.Series]:
-    """What ``rotation_absolute.png`` draws: one curve per distinct outcome (cells with the same rate and pairs in
-    every bin share one, labelled with all their names), each moved sideways by its own small offset so that none
-    hides another; rows (curve, bin) with ``x``, ``rate``, ``ci_low``, ``ci_high``. And the pairs per bin."""
-    values = pd.DataFrame(table.values)
+def _outcome_name(group: list[str]) -> str:
+    """A legend entry: the cell, or ``N cells, same outcome:`` and the first :data:`NAMES_SHOWN` of them."""
+    if len(group) == 1:
+        return group[0]
+    more = len(group) - NAMES_SHOWN
+    return f"{len(group)} cells, same outcome:\n" + "\n".join(group[:NAMES_SHOWN]) + (f"\nand {more} more" if more > 0
+                                                                                     else "")
+
+
+def outcome_groups(values: pd.DataFrame) -> tuple[dict[tuple, list[str]], pd.DataFrame, pd.DataFrame]:
+    """The table's cells grouped by outcome (the same rate and pairs in every bin), in the table's order; and the
+    rates and pairs per (cell, bin)."""
     rates = values.pivot(index="row", columns="column", values="ours").reindex(columns=bin_labels())
     pairs = values.pivot(index="row", columns="column", values="pairs").reindex(columns=bin_labels())
-    order = list(dict.fromkeys(values["row"]))
     groups: dict[tuple, list[str]] = {}
-    for method in order:
-        key = tuple(rates.loc[method].fillna(-1)) + tuple(pairs.loc[method])
-        groups.setdefault(key, []).append(method)
-    names = [group[0] if len(group) == 1 else f"{len(group)} cells, same outcome:\n" + "\n".join(group)
-             for group in groups.values()]
+    for method in dict.fromkeys(values["row"]):
+        groups.setdefault(tuple(rates.loc[method].fillna(-1)) + tuple(pairs.loc[method]), []).append(method)
+    return groups, rates, pairs
+
+
+def plot_curves(table: Table, most: int = MAX_CURVES) -> tuple[pd.DataFrame, pd.Series]:
+    """What ``rotation_absolute.png`` draws: one curve per distinct outcome (cells with the same rate and pairs in
+    every bin share one), each moved sideways by its own small offset so that none hides another; at most ``most``
+    curves, the outcomes of highest mean pose success over their pairs, best first (the table's order on a tie);
+    rows (curve, bin) with ``x``, ``rate``, ``ci_low``, ``ci_high``. And the pairs per bin."""
+    values = pd.DataFrame(table.values)
+    groups, rates, pairs = outcome_groups(values)
+    mean = {key: (rates.loc[g[0]] * pairs.loc[g[0]]).sum() / max(1, pairs.loc[g[0]].sum()) for key, g in groups.items()}
+    best = sorted(groups, key=lambda key: -mean[key])[:most]  # a stable sort keeps the table's order on ties
+    groups = {key: groups[key] for key in best}  # the legend lists the best first
+    names = [_outcome_name(group) for group in groups.values()]
     step = min(DODGE_DEG / len(names), 2.0)
     centres = (EDGES[:-1] + EDGES[1:]) / 2
     curves = []
@@ -117,12 +136,16 @@ def write_rotation_plot(table: Table, out_dir: str | Path) -> Path:
     from matplotlib.ticker import MaxNLocator
 
     curves, pairs = plot_curves(table)
+    outcomes = len(outcome_groups(pd.DataFrame(table.values))[0])
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, height_ratios=(3, 1))
     for i, (name, curve) in enumerate(curves.groupby("curve", sort=False)):
         errors = [curve["rate"] - curve["ci_low"], curve["ci_high"] - curve["rate"]]
         top.errorbar(curve["x"], curve["rate"], yerr=errors, marker="osD^vPX*"[i % 8], markersize=4, capsize=2,
                      linewidth=1, elinewidth=0.7, label=name, linestyle=("-", "--", ":", "-.")[i // 8 % 4])
-    top.set(ylabel="pose success", ylim=(-0.02, 1.02), title=table.title)
+    shown = curves["curve"].nunique()
+    title = table.title + (f"\nthe {shown} best of {outcomes} outcomes; every cell in rotation_absolute.csv"
+                           if shown < outcomes else "")
+    top.set(ylabel="pose success", ylim=(-0.02, 1.02), title=title)
     top.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="error bars: Wilson 95 % interval",
                title_fontsize=6)
     centres = (EDGES[:-1] + EDGES[1:]) / 2
@@ -130,10 +153,9 @@ def write_rotation_plot(table: Table, out_dir: str | Path) -> Path:
     bottom.set(xlabel="rotation of the pair (degrees)", ylabel="pairs per bin", xlim=(0, 180), xticks=EDGES,
                ylim=(0, max(1, pairs.max()) * 1.3))
     bottom.yaxis.set_major_locator(MaxNLocator(nbins=4, integer=True))
-    fig.tight_layout()
     path = Path(out_dir) / "rotation_absolute.png"
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # the legend beside the axes included
     plt.close(fig)
     return path
 

@@ -15,9 +15,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from gtsweep.datasets.floors import MICROGPS_PX_PER_MM  # Zhang et al.: 30 px = 4.8 mm
 from gtsweep.evaluation import budget
 
-MICROGPS_PX_PER_MM = 30 / 4.8  # Zhang et al.: 30 px = 4.8 mm
 MICROGPS_VIEW = (1288, 964)
 SURVEY_BUDGET, SURVEY_MIN_KEYPOINTS, SURVEY_RADIUS_PX = 1000, 100, 30.0
 DETECTION_TABLES = ("table2", "table3")

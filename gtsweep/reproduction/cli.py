@@ -19,7 +19,7 @@ import yaml
 
 from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import SIGNALS, Interrupted, on_signal
-from gtsweep.core.paths import CONF_DIR, PROJECT_DIR
+from gtsweep.core.paths import CONF_DIR, DEFAULT_CACHE_DIR, PROJECT_DIR
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.reproduction.tuned import tuned_digest, tuning_fingerprint
 from gtsweep.report.tables import ALPHA
@@ -130,9 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gtsweep.reproduction", description=__doc__.splitlines()[0])
     parser.add_argument("command", choices=COMMANDS)
     parser.add_argument("--state", default=str(states.STATE_DIR), help="the state folder (committed)")
-    parser.add_argument("--work", default=str(PROJECT_DIR / ".gtsweep_cache" / "reproduction"),
+    parser.add_argument("--work", default=str(PROJECT_DIR / DEFAULT_CACHE_DIR / "reproduction"),
                         help="scratch sweeps, keypoint cache and MLflow store (not state)")
-    parser.add_argument("--cache", default=str(PROJECT_DIR / ".gtsweep_cache"), help="rendered data sets")
+    parser.add_argument("--cache", default=str(PROJECT_DIR / DEFAULT_CACHE_DIR), help="rendered data sets")
     parser.add_argument("--docs", default=str(PROJECT_DIR / "docs"), help="where REPRODUCTION.md goes")
     parser.add_argument("--commit", action="store_true", help="git-commit each chunk as it is written")
     parser.add_argument("--until", help="HH:MM (local time): start no chunk after it")

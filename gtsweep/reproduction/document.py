@@ -19,7 +19,7 @@ from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation.verdicts import UNDECIDED, images_to_decide
 from gtsweep.reproduction.rounds import PRESETS
 from gtsweep.report.tuning import tuning_table
-from gtsweep.reproduction.tuned import tuned_line
+from gtsweep.reproduction.tuned import TUNED, tuned_line
 from gtsweep.report.scale import annotate, scale_from_config
 from gtsweep.report.tables import build_tables
 from gtsweep.reproduction import looks as looking
@@ -117,7 +117,7 @@ def write(state: State, docs: Path, alpha: float, done_parts: set[str], finished
             old.unlink()
     lines = header(state, finished, done_parts)
     if tuning:
-        lines += ["", tuned_line(tuning), "", tuning_table()]
+        lines += ["", tuned_line(tuning), "", tuning_table(TUNED)]
     lines += ["", "## The survey's findings", "", "Each finding as pre-stated (`docs/statistics_design.md`), at "
               "its last look: rounds 1-5 of the sequential design, replayed on the state's rows, then the "
               "amendment's final look at the survey's count for the findings still open.", "",

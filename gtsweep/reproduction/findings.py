@@ -24,7 +24,8 @@ import pandas as pd
 from gtsweep.evaluation import statistics, verdicts
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.evaluation.verdicts import ABOVE, AMONG, BEATS, BELOW, WITHIN, Claim
-from gtsweep.report.pools import (EVERY_CELL, ORIENTED, PLAIN_DESCRIPTORS, SURVEY_VARIANT, UNORIENTED, Data, best,
+from gtsweep.orchestration.grid import SURVEY_METHODS
+from gtsweep.report.pools import (EVERY_CELL, ORIENTED, PLAIN_DESCRIPTORS, UNORIENTED, Data, best,
                                   by_count, cells_where, detection_cells, keeps_all, median_entry, pairings,
                                   survey_selector, table3)
 from gtsweep.report.samples import against, compare, rate_within
@@ -354,17 +355,18 @@ def check(hypothesis: Hypothesis, frames: dict, views: dict, alpha: float) -> Fi
 
 
 def survey_variant(frames: dict[str, pd.DataFrame]) -> tuple[dict[str, pd.DataFrame], str]:
-    """``frames`` reduced to one (matcher, estimator) variant, and a sentence saying which, so that no finding
-    pools cells that differ only in matcher or estimator: the survey's (:data:`SURVEY_VARIANT`) where a run has
-    it, else the first one seen. Cells without the column (detection) are kept. The sentence is empty when every
-    frame has only the survey's variant (or none)."""
+    """``frames`` reduced to one (matcher, estimator) variant, and a sentence saying which, so that no finding pools
+    cells that differ only in matcher or estimator: the survey's
+    (:data:`~gtsweep.orchestration.grid.SURVEY_METHODS`) where a run has it, else the first one seen. Cells without
+    the column (detection) are kept. The sentence is empty when every frame has only the survey's variant (or
+    none)."""
     chosen, left_out, shown = {}, 0, {}
     for name, df in frames.items():
         if df is None or not len(df):
             chosen[name] = df
             continue
         keep = pd.Series(True, index=df.index)
-        for column, survey in SURVEY_VARIANT.items():
+        for column, survey in SURVEY_METHODS.items():
             if column not in df or df[column].dropna().empty:
                 continue
             values = list(dict.fromkeys(df[column].dropna()))
@@ -372,10 +374,10 @@ def survey_variant(frames: dict[str, pd.DataFrame]) -> tuple[dict[str, pd.DataFr
             keep &= df[column].isna() | (df[column] == value)
             shown.setdefault(column, set()).add(value)
         chosen[name], left_out = df[keep], left_out + int((~keep).sum())
-    if all(v == {SURVEY_VARIANT[k]} for k, v in shown.items()) and not left_out:
+    if all(v == {SURVEY_METHODS[k]} for k, v in shown.items()) and not left_out:
         return chosen, ""
     names = ", ".join(f"{k} {'/'.join(sorted(map(str, v)))}" for k, v in shown.items())
-    survey = all(v == {SURVEY_VARIANT[k]} for k, v in shown.items())
+    survey = all(v == {SURVEY_METHODS[k]} for k, v in shown.items())
     which = f"the survey's variant ({names})" if survey else \
         f"{names} (the survey's bf_ratio + ransac was not run)"
     dropped = f": {left_out} cell(s) of other matchers or estimators left out, never pooled" if left_out else ""

@@ -23,7 +23,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gtsweep.core.atomic import write_atomically
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.core.memory import PeakMemory
+from gtsweep.core.rundirs import PARENT_RECORD, RUN_RECORD
 from gtsweep.reproduction import task_costs
 from gtsweep.reproduction.run_record import RunRecord, copy_absent
 
@@ -88,8 +90,8 @@ def run_preset(preset: str, overrides: list[str], work: Path, uri: str, cache: P
     if process.returncode != 0:
         raise SystemExit(f"gtsweep.reproduce: preset {preset} failed (exit {process.returncode}); "
                          f"see {work / f'{preset}.log'}")
-    record = json.loads((out / "run.json").read_text())
-    parent = json.loads((out / "mlflow.json").read_text())["parent_run_id"]
+    record = json.loads((out / RUN_RECORD).read_text())
+    parent = json.loads((out / PARENT_RECORD).read_text())["parent_run_id"]
     lookups = record["cache_hits"] + record["cache_misses"]
     return {"preset": preset, "output": out, "wall_s": seconds, "peak_mb": memory.total / 2**20,
             "cache_hit_rate": record["cache_hits"] / lookups if lookups else float("nan"),
@@ -191,7 +193,7 @@ def cells_of(output: Path) -> list[dict]:
 
 
 def _identity(methods: dict) -> tuple:
-    return tuple(methods.get(k) for k in ("detector", "selector", "descriptor", "transform", "matcher", "estimator"))
+    return tuple(methods.get(k) for k in METHOD_GROUPS)
 
 
 def restriction(available: list[dict], needed: list[dict]) -> tuple[list[str], int]:

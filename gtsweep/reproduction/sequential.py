@@ -22,7 +22,7 @@ import pandas as pd
 from gtsweep.evaluation.statistics import spent_alpha
 from gtsweep.evaluation.verdicts import DECIDED
 from gtsweep.reproduction.rounds import counts, fraction
-from gtsweep.orchestration.results import METHOD_COLUMNS
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.reproduction.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries
@@ -111,7 +111,7 @@ def needed_cells(open_findings: list[Hypothesis], latest: dict[str, dict]) -> di
         keep = pd.Series(False, index=cells.index)
         for hypothesis in (h for h in open_findings if h.preset == preset):
             keep |= hypothesis.needs(cells).to_numpy()
-        methods = [c for c in METHOD_COLUMNS if c in cells]
+        methods = [c for c in METHOD_GROUPS if c in cells]
         needed[preset] = [{m: (None if pd.isna(v) else v) for m, v in row.items()}
                           for row in cells.loc[keep.to_numpy(), methods].to_dict("records")]
     return needed

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from gtsweep.core.rundirs import RUN_RECORD
 from gtsweep.orchestration.results import ResultStore
 
 #: Per-view columns that identify one description (with the cell's methods); one match adds the matcher.
@@ -68,6 +69,6 @@ def scaled_seconds(wall: float, work: float, cpus: int, scale: float) -> float:
 
 def cpus_of(output: Path) -> int:
     """The CPUs a sweep's tasks ran on (``run.json``'s cluster; 1 when serial or not recorded)."""
-    record = Path(output) / "run.json"
+    record = Path(output) / RUN_RECORD
     cluster = json.loads(record.read_text()).get("cluster", {}) if record.exists() else {}
     return max(int(cluster.get("cpus") or 1), 1)

@@ -232,9 +232,11 @@ class MatcherSpec(Method):
 
 
 _matcher = functools.partial(MatcherSpec, "matcher")
+#: The survey's matcher (section 5: brute force and the ratio test, 0.7).
+SURVEY_MATCHER = "bf_ratio"
 
 MATCHERS: Registry[MatcherSpec] = Registry("matcher", [
-    _matcher("bf_ratio", "BF+ratio", BruteForce, {"ratio": 0.7, "mutual": False}),
+    _matcher(SURVEY_MATCHER, "BF+ratio", BruteForce, {"ratio": 0.7, "mutual": False}),
     _matcher("mutual_nn", "mutual NN", functools.partial(BruteForce, ratio=1.0, mutual=True), {}),
     _matcher("flann", "FLANN", Flann, {"ratio": 0.7, "algorithm": "auto", "trees": 4, "checks": 32,
                                        "table_number": 6, "key_size": 12, "multi_probe_level": 1, "seed": 0},

@@ -294,10 +294,12 @@ class EstimatorSpec(Method):
 
 
 _estimator = functools.partial(EstimatorSpec, "estimator")
+#: The survey's pose estimator (section 5: RANSAC, a similarity, 2000 iterations, 3 px).
+SURVEY_ESTIMATOR = "ransac"
 _CV = {"threshold": 3.0, "iterations": 2000, "confidence": 0.99, "refine_iters": 10}
 
 ESTIMATORS: Registry[EstimatorSpec] = Registry("estimator", [
-    _estimator("ransac", "RANSAC", SeededRansac, {"model": "similarity", "iterations": 2000, "threshold": 3.0}),
+    _estimator(SURVEY_ESTIMATOR, "RANSAC", SeededRansac, {"model": "similarity", "iterations": 2000, "threshold": 3.0}),
     _estimator("cv_ransac", "cv RANSAC", functools.partial(OpenCVEstimator, "ransac"), _CV),
     _estimator("cv_lmeds", "cv LMEDS", functools.partial(OpenCVEstimator, "lmeds"),
                {k: v for k, v in _CV.items() if k != "threshold"}),

@@ -16,6 +16,7 @@ from typing import Iterable, Iterator, Mapping
 
 import yaml
 
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.tracking.store import flatten
 
 #: The tag that keeps a method's registry name when the param holds the option as written (``tuned/sift``).
@@ -24,7 +25,7 @@ FINGERPRINT = "dataset.fingerprint"
 #: Data-set settings that say where files are kept, not which data: left out of a cell's params.
 DATASET_PLUMBING = ("cache_dir",)
 #: The method configurations a cell logs (``<group>.params.<name>``), besides the method names.
-CONFIGURED = ("detector", "selector", "descriptor", "transform", "matcher", "estimator", "experiment")
+CONFIGURED = (*METHOD_GROUPS, "experiment")
 #: MLflow accepts at most 100 params (and 100 tags) per ``log_batch`` call.
 MAX_PER_BATCH = 100
 MAX_KEY, MAX_VALUE = 250, 6000

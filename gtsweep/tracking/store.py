@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Iterator, Mapping
 
 from gtsweep.core.errors import BadInput
+from gtsweep.orchestration.settings import default
 
 #: MLflow's own HTTP retries (default 7, with exponential backoff: minutes); the user's environment wins.
 HTTP_RETRIES = "2"
@@ -71,26 +72,30 @@ def probe(uri: str, timeout: float) -> None:
     os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", HTTP_RETRIES)
 
 
-def open_store(cfg: Mapping | None, name: str):
-    """``(client, experiment id)`` of the configured store (:func:`tracking_uri`) and experiment ``name``.
+def experiment_name(cfg: Mapping | None) -> str:
+    """The MLflow experiment of the ``mlflow`` settings ``cfg``."""
+    return (cfg or {}).get("experiment") or default("mlflow.experiment")
 
-    Checked before any work: a server that does not answer within ``mlflow.timeout_s`` (default 5) or a store
+
+def open_store(cfg: Mapping | None, name: str | None = None):
+    """``(client, experiment id)`` of the configured store (:func:`tracking_uri`) and experiment ``name`` (by
+    default :func:`experiment_name`).
+
+    Checked before any work: a server that does not answer within ``mlflow.timeout_s`` or a store
     that cannot be opened is a one-line BadInput. Creation and migration of a sqlite store, and the experiment's
     get-or-create, run under :func:`store_lock`.
     """
     from mlflow.tracking import MlflowClient
 
-    from gtsweep.orchestration.settings import SETTINGS
-
     uri = tracking_uri(cfg)
-    probe(uri, SETTINGS["mlflow.timeout_s"].check("mlflow.timeout_s", (cfg or {}).get("timeout_s", 5)))
+    probe(uri, (cfg or {}).get("timeout_s", default("mlflow.timeout_s")))  # its range: check_settings
     with store_lock(uri):
         try:
             client = MlflowClient(uri)
         except Exception as e:
             reason = (str(e).strip().splitlines() or [type(e).__name__])[0]
             raise BadInput(f"cannot use the MLflow store '{uri}': {reason}") from None
-        return client, experiment_id(client, name)
+        return client, experiment_id(client, name or experiment_name(cfg))
 
 
 def experiment_id(client, name: str) -> str:

@@ -52,7 +52,7 @@ class StudyTracker:
     def __init__(self, mlflow_cfg: Mapping, study, target, settings: Mapping, fingerprint: str, config_yaml: str):
         self.uri = tracking_uri(mlflow_cfg)
         self.settings = settings
-        self.client, self.experiment_id = open_store(mlflow_cfg, (mlflow_cfg or {}).get("experiment") or "gtsweep")
+        self.client, self.experiment_id = open_store(mlflow_cfg)
         model_development(self.client, self.experiment_id)
         self.source = source_tags()
         self.config, self.written = parsed_config(config_yaml), written_options()

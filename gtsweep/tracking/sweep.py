@@ -28,6 +28,7 @@ from typing import Mapping
 
 from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
+from gtsweep.core.rundirs import CELLS, COMBINED, PARENT_RECORD, REPORT, RUN_RECORD
 from gtsweep.tracking.closing import REASON_TAG, clear_reason, mark_ended, reopen
 from gtsweep.tracking.figures import FIGURE, strength_figure
 from gtsweep.tracking.metricnames import SWEEP, mlflow_name, summary_name
@@ -40,15 +41,13 @@ from gtsweep.tracking.params import (
     parsed_config,
     written_options,
 )
-from gtsweep.tracking.store import git_commit, open_store, tracking_uri
+from gtsweep.tracking.store import experiment_name, git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (PAIRING_TAG, cell_names, child_name, cluster_tags, model_development, ms,
                                    pairing_label, quiet_mlflow, source_tags, unique_name)
 from gtsweep.tracking.views import runs_url, save_pairings_view
 
-PARENT_RECORD = "mlflow.json"
 CELL_TAG, HASH_TAG, STATUS_TAG = "gtsweep.cell", "gtsweep.hash", "gtsweep.status"
 MAX_BATCH = 1000  # metrics per MlflowClient.log_batch call
-RUN_RECORD = "run.json"  # the sweep's record in its output directory (gtsweep.orchestration.skeleton)
 VIEWS_FILE = "views.csv"  # a child run's per-view rows (one name in every run: MLflow's compare page shows them)
 
 
@@ -74,7 +73,7 @@ class SweepTracker:
         logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
         self.cfg = cfg
         self.uri = tracking_uri(cfg)
-        self.experiment_name = (cfg or {}).get("experiment") or "gtsweep"
+        self.experiment_name = experiment_name(cfg)
         self.output_dir = Path(output_dir)
         self.config_yaml = config_yaml
         self.run_name, self.nest_under = run_name, nest_under  # nest_under: a multirun's run
@@ -208,7 +207,7 @@ class SweepTracker:
 
     def _log_files(self, run_id: str, cell, summary: Mapping, name: str) -> None:
         """The cell's per-view rows as ``views.csv`` and, with strengths, its curves as a figure."""
-        per_view = self.output_dir / "cells" / f"{cell.key}.csv"
+        per_view = self.output_dir / CELLS / f"{cell.key}.csv"
         if per_view.exists():
             with tempfile.TemporaryDirectory() as tmp:
                 self.client.log_artifact(run_id, str(shutil.copyfile(per_view, Path(tmp) / VIEWS_FILE)))
@@ -262,7 +261,7 @@ class SweepTracker:
             self.client.log_artifact(self.parent_id, str(outcome.table))
         for path in artifacts:  # the report: survey tables and plots
             if Path(path).exists():
-                self.client.log_artifact(self.parent_id, str(path), "report")
+                self.client.log_artifact(self.parent_id, str(path), REPORT)
         if not outcome.failed:
             clear_reason(self.client, self.parent_id)
         self.client.set_terminated(self.parent_id, "FAILED" if outcome.failed else "FINISHED")
@@ -296,7 +295,7 @@ def _number(value) -> float:
 def open_multirun(cfg: Mapping | None, name: str, sweep_dir: Path, previous: str | None = None) -> str:
     """The MLflow run that holds the jobs' runs of a multirun (``previous``, reopened on resume, else new)."""
     quiet_mlflow()
-    client, experiment = open_store(cfg, (cfg or {}).get("experiment") or "gtsweep")  # locked first use
+    client, experiment = open_store(cfg)  # locked first use
     if previous is not None:
         reopen(client, previous)
         return previous
@@ -313,7 +312,7 @@ def close_multirun(cfg: Mapping | None, run_id: str, artifacts: list[Path] = (),
 
     client = MlflowClient(tracking_uri(cfg))
     for path in artifacts:
-        client.log_artifact(run_id, str(path), "combined")
+        client.log_artifact(run_id, str(path), COMBINED)
     if failed:
         mark_ended(client, run_id, failed, "FAILED")
     else:

@@ -27,6 +27,9 @@ VIEW_KEY = "gtsweep-pairings"
 VIEW_NAME = "gtsweep: pairings"
 VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 TRAINING_VIEW = "workflowType=machine_learning"
+#: The runs table's column of run names and group labels, and its width in pixels (a pairing tag of ~60 characters).
+RUN_NAME_COLUMN = "attributes.`Run Name`"
+RUN_NAME_WIDTH = 460
 #: The method and data-set params shown as columns.
 PAIRING = ("detector", "selector", "descriptor", "matcher", "estimator", "transform", "dataset")
 #: Shown as a column besides each experiment kind's headline: the survey's other main number.
@@ -45,12 +48,16 @@ def _column(kind: str, name: str) -> str:
 
 def pairings_state(cell_tag: str) -> dict:
     """The runs page's settings of the saved view; ``cell_tag`` is the tag every cell run has."""
+    columns = [*(_column("metrics", m) for m in headline_metrics()), *(_column("params", p) for p in PAIRING)]
     return {
         "searchFilter": f"tags.`{cell_tag}` LIKE '%'",
         "orderByKey": "attributes.start_time",
         "orderByAsc": False,
-        "selectedColumns": [*(_column("params", p) for p in PAIRING),
-                            *(_column("metrics", m) for m in headline_metrics())],
+        "selectedColumns": columns,
+        # the Run Name column (which holds a group's label) wide enough for the label, then the headline metrics,
+        # then the methods (MLflow applies the widths to the columns that columnOrder lists)
+        "columnOrder": [RUN_NAME_COLUMN, *columns],
+        "columnWidths": {RUN_NAME_COLUMN: RUN_NAME_WIDTH},
         "groupBy": {"aggregateFunction": "average", "groupByKeys": [{"mode": "tag", "groupByData": PAIRING_TAG}]},
         "runsHiddenMode": "SHOW_ALL",
         # the chart view: MLflow's generated charts, in sections ordered headline first (kept as given when

@@ -34,7 +34,7 @@ def write_tuned(path: Path, target: Target, values: Mapping, header: list[str]) 
             f"    {yaml.safe_dump({k: v}, default_flow_style=True, sort_keys=False).strip()[1:-1]}\n"
             for k, v in space.items())
     lines = [f"# @package {target.group}", *[f"# {line}" for line in header]]
-    if "factory" not in node:  # a method of the code: its values typed by its schema (gtsweep.cli.schemas)
+    if "factory" not in node:  # a method of the code: its values typed by its schema (gtsweep.orchestration.schemas)
         lines.append(f"defaults: [/schema/{target.group}/{target.name}@_here_, _self_]")
     write_atomically(path, "\n".join(lines) + "\n" + body)  # presets select it: never half-written
     return path

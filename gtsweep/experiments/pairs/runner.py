@@ -18,9 +18,10 @@ from typing import Callable
 import pandas as pd
 
 from gtsweep.experiments.pairs import tasks
-from gtsweep.orchestration.executor import make_executor
-from gtsweep.orchestration.tasks import RunStats
 from gtsweep.experiments.pairs.grid import Cell, Grid
+from gtsweep.orchestration.executor import make_executor
+from gtsweep.orchestration.settings import default
+from gtsweep.orchestration.tasks import RunStats
 from gtsweep.orchestration.shards import shard_kind
 from gtsweep.stages import device as devices
 from gtsweep.stages.describe import DESCRIPTORS
@@ -91,7 +92,8 @@ def run(grid: Grid, shards: dict[str, list[dict]], jobs: list[DetectionJob], run
     stats = RunStats(detection_tasks=len(jobs))
     tracker = _CellTracker(jobs, on_cell)
     stats.pairing_tasks = submit(executor, grid, shards, jobs, seed, cache_dir,
-                                 runner_cfg.get("describe_together", True), runner_cfg.get("gpus_per_task", 0.25))
+                                 runner_cfg.get("describe_together", default("runner.describe_together")),
+                                 runner_cfg.get("gpus_per_task", default("runner.gpus_per_task")))
     for job, result in executor.results():
         if isinstance(job, PairingGroup) and "parts" not in result:  # crashed: each job by itself
             for pairing, args in zip(job.pairings, job.alone):

@@ -3,7 +3,7 @@
 When Ray's raylet dies mid-run, Ray ends the driver from its compiled code (no Python exception, no ``finally``,
 no ``atexit``): the app cannot mark its MLflow parent run FAILED nor print how to resume. So before Ray starts,
 :func:`watched` starts this module as a small process tied to the sweep by a pipe. Every end the app reaches
-itself (a normal end, bad input, an interrupt, :func:`~gtsweep.cli.lifecycle.exit_failed`) writes ``done`` to the
+itself (a normal end, bad input, an interrupt, :func:`~gtsweep.cli.lifecycle.stop`) writes ``done`` to the
 pipe and the watchdog leaves quietly. If the pipe closes without it, the sweep process died: the watchdog marks
 the parent run (``mlflow.json`` in the output directory) FAILED with the cause — "the Ray cluster was lost (raylet
 died)" when the sweep's own raylet ended before it, else "the sweep process died" —, ends the Ray processes of the
@@ -23,8 +23,9 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
-from gtsweep.cli.lifecycle import RAYLET_LOST, failure_line
+from gtsweep.core.errors import RAYLET_LOST, failure_line
 from gtsweep.orchestration.cluster import end_ray_processes
+from gtsweep.orchestration.resume_pick import kept_cells
 
 DONE = b"done\n"
 POLL_S = 0.5
@@ -121,7 +122,7 @@ def ray_package_dir() -> str | None:
 def mark_failed(output_dir: Path, cause: str) -> str:
     """Mark the sweep's parent run FAILED; "" when done or when there is none, else a note why not."""
     from gtsweep.tracking.closing import mark_ended
-    from gtsweep.tracking.sweep import PARENT_RECORD
+    from gtsweep.core.rundirs import PARENT_RECORD
 
     record = output_dir / PARENT_RECORD
     if not record.exists():  # MLflow off, or the sweep died before its parent run existed
@@ -139,8 +140,7 @@ def main(argv: list[str]) -> int:
         return 0
     end_ray_processes(ray_package_dir(), owner=sweep_pid)  # its agents would linger for minutes
     marked = mark_failed(output_dir, cause)
-    kept = f"{len(list((output_dir / 'cells').glob('*.json')))} finished cell(s) kept in {output_dir}"
-    print(failure_line(cause, kept, marked, resume), file=sys.stderr, flush=True)
+    print(failure_line(cause, kept_cells(output_dir), marked, resume), file=sys.stderr, flush=True)
     return 1
 
 

@@ -15,11 +15,51 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from gtsweep.orchestration.grid import REGISTRIES
-from gtsweep.orchestration.settings import SCHEMA_GROUP, SETTINGS, typed, typed_settings
+from omegaconf import MISSING
+from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode, StringNode, ValueNode
 
+from gtsweep.core.ranges import Choice, Range
+from gtsweep.orchestration.grid import REGISTRIES
+from gtsweep.orchestration.settings import SETTINGS
+
+#: Where gtsweep's structured configs live in Hydra's ConfigStore (``schema/<group>/<name>``, ``schema/run``, an
+#: experiment kind's ``schema/experiment/<name>``).
+SCHEMA_GROUP = "schema"
 #: The sections of the primary config whose settings ``schema/run`` types (the experiment's are its kind's).
 RUN_SECTIONS = ("seed", "runner", "cache", "mlflow", "report")
+NODES = {bool: BooleanNode, int: IntegerNode, float: FloatNode, str: StringNode}
+
+
+def typed(value: Any) -> ValueNode:
+    """A node that admits values of the kind of ``value`` (an int where a float stands; None stays untyped)."""
+    return NODES.get(type(value), AnyNode)(value)
+
+
+def setting_node(rule) -> ValueNode | None:
+    """An empty node of the type a setting's rule admits (None for a rule without one type, e.g. a list)."""
+    if isinstance(rule, Range):
+        return (IntegerNode if rule.integer else FloatNode)(MISSING, is_optional=rule.optional)
+    if isinstance(rule, Choice):
+        kinds = {type(choice) for choice in rule.options if choice is not None}
+        if len(kinds) == 1 and kinds.pop() in (bool, str):
+            return NODES[type(next(c for c in rule.options if c is not None))](MISSING, is_optional=rule.optional)
+    return None
+
+
+def typed_settings(rules: Mapping[str, object]) -> dict:
+    """The typed nodes of dotted settings, nested (``runner.num_cpus`` -> ``{runner: {num_cpus}}``): what Hydra
+    merges a config's values onto, so that a value of the wrong type is Hydra's own error (it has no ranges)."""
+    schema: dict = {}
+    for key, rule in rules.items():
+        node = setting_node(rule)
+        if node is None:
+            continue
+        *parents, leaf = key.split(".")
+        section = schema
+        for parent in parents:
+            section = section.setdefault(parent, {})
+        section[leaf] = node
+    return schema
 
 
 def method_schema(name: str, defaults: Mapping[str, Any]) -> dict:
@@ -41,14 +81,3 @@ def register_schemas() -> None:
         for name, method in registry.items():
             store.store(group=f"{SCHEMA_GROUP}/{group}", name=name, node=method_schema(name, method.defaults))
     store.store(group=SCHEMA_GROUP, name="run", node=run_schema())
-    register_sweeper()
-
-
-def register_sweeper() -> None:
-    """gtsweep's sweeper (``hydra/sweeper: gtsweep``) known to Hydra in this process, also where Hydra's plugin
-    discovery does not look (an editable install's package finder)."""
-    from hydra.core.plugins import Plugins
-
-    from hydra_plugins.gtsweep_sweeper import GtsweepSweeper  # also stores its config node
-
-    Plugins.instance().register(GtsweepSweeper)
