@@ -58,17 +58,18 @@ def survey_method_settings(cfg: Mapping, judging: Mapping) -> dict:
     (``{"matchers": {name: params}, "estimators": {name: params}}``, what a trial builds), ``pose`` (``judging``'s
     success thresholds), and for the study's name ``ratio``, ``mutual`` and the estimator's model, iterations and
     threshold in ``pose``."""
-    from gtsweep.stages.match import MATCHERS
-    from gtsweep.stages.pose import ESTIMATORS
+    from gtsweep.stages.match import MATCHERS, SURVEY_MATCHER
+    from gtsweep.stages.pose import ESTIMATORS, SURVEY_ESTIMATOR
 
     def params(group: str, name: str, registry) -> dict:
         node = (plain(cfg.get(group)) or {}).get(name) or {}
         return registry.get(name).params(node.get("params"))
 
-    matcher, estimator = params("matcher", "bf_ratio", MATCHERS), params("estimator", "ransac", ESTIMATORS)
+    matcher = params("matcher", SURVEY_MATCHER, MATCHERS)
+    estimator = params("estimator", SURVEY_ESTIMATOR, ESTIMATORS)
     pose = {k: estimator[k] for k in ("model", "iterations", "threshold")}
     return {"ratio": matcher["ratio"], "mutual": matcher["mutual"], "pose": {**pose, **judging},
-            "methods": {"matchers": {"bf_ratio": matcher}, "estimators": {"ransac": estimator}}}
+            "methods": {"matchers": {SURVEY_MATCHER: matcher}, "estimators": {SURVEY_ESTIMATOR: estimator}}}
 
 
 def job_transforms(settings: Mapping) -> dict:
