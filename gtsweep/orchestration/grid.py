@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Mapping
 
-from gtsweep.core.config import config_hash, plain
+from gtsweep.core.config import METHOD_GROUPS, config_hash, plain
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.plugins import enable as enable_plugins
 from gtsweep.core.registry import Registry
@@ -36,8 +36,6 @@ REGISTRIES: dict[str, Registry] = {"detector": DETECTORS, "selector": SELECTORS,
 SURVEY_METHODS = {"matcher": SURVEY_MATCHER, "estimator": SURVEY_ESTIMATOR}
 
 
-#: The grid groups in the order a cell names its methods.
-METHOD_GROUPS = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
 #: The grid attribute that holds each group's ``{name: node}``.
 GROUP_ATTRIBUTES = {"detector": "detectors", "selector": "selectors", "descriptor": "descriptors",
                     "transform": "transforms", "matcher": "matchers", "estimator": "estimators"}

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
-from gtsweep.core.config import plain
+from gtsweep.core.config import METHOD_GROUPS, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.core.ranges import check_all
 from gtsweep.datasets.core import read_gray
@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 class LocCell(MethodCell):
     """One cell; its ``transform`` is "map" (MLflow run names read it: ``sift·sift·map·flann·magsac``)."""
 
-    NAMED = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+    NAMED = METHOD_GROUPS
     KEY = ("detector", "selector", "descriptor", "matcher", "estimator")
 
     detector: str

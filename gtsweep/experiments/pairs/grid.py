@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Mapping
 
-from gtsweep.core.config import plain
+from gtsweep.core.config import METHOD_GROUPS, plain
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration.grid import (
     MethodCell,
@@ -40,7 +40,7 @@ class Cell(MethodCell):
     its MLflow run)."""
 
     NAMED = ("detector", "selector", "descriptor", "transform")
-    KEY = ("detector", "selector", "descriptor", "transform", "matcher", "estimator")
+    KEY = METHOD_GROUPS
     SURVEY_DEFAULTS = ("matcher", "estimator")
 
     detector: str
