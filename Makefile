@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-fast bench ui tune reproduce clean browser
+.PHONY: install demo test test-fast lint bench ui tune reproduce clean browser
 
 install: $(STAMP)
 
@@ -31,7 +31,7 @@ browser:
 
 # pytest's exit code 5 (no test collected) counts as a failure. The 20 slowest tests are listed at the end (the
 # suite's time budget is ~10 minutes on 2 cores).
-test: $(STAMP) browser
+test: $(STAMP) browser lint
 	@$(BIN)/python -m pytest --durations=20; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
 
@@ -39,6 +39,10 @@ test: $(STAMP) browser
 test-fast: $(STAMP)
 	@$(BIN)/python -m pytest -m "not slow"; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
+
+# One linter, configured in pyproject.toml ([tool.ruff]): pycodestyle, pyflakes, bugbear, pyupgrade.
+lint: $(STAMP)
+	$(BIN)/ruff check
 
 bench: $(STAMP)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

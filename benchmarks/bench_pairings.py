@@ -10,9 +10,9 @@ detectors run with the table presets' tuned parameters, keypoints reduced to the
 Tables 4 and 5. Times are the CPU time of the calling thread (``time.thread_time``) for the detection and for the
 description (keypoint preparation included), best of --repeat, OpenCV on 1 thread as in a Ray task: unlike wall
 time they hold when other processes share the cores. ms per image; each descriptor's pairings (native, foreign,
-every option) are timed in one block, repeats interleaved. "native" is the descriptor on its own family's keypoints (SIFT on SIFT's, ...);
-descriptors without a detector of their own (BRIEF, LATCH, FREAK, DAISY) have no ratio. Target: no foreign
-pairing above 2x its descriptor's native cost. The last lines compare gtsweep's NumPy SURF describing its own
+every option) are timed in one block, repeats interleaved. "native" is the descriptor on its own family's keypoints
+(SIFT on SIFT's, ...); descriptors without a detector of their own (BRIEF, LATCH, FREAK, DAISY) have no ratio. Target:
+no foreign pairing above 2x its descriptor's native cost. The last lines compare gtsweep's NumPy SURF describing its own
 1000 keypoints with OpenCV's SIFT describing its own (target: at most 2x). Prints figures; no pass/fail.
 """
 from __future__ import annotations
@@ -27,9 +27,9 @@ from gtsweep.cli.overrides import compose_config
 from gtsweep.core.errors import GtsweepError
 from gtsweep.datasets import load_dataset
 from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.stages.applicability import applicability, describe_timed
 from gtsweep.stages.describe import DESCRIPTORS, describe_batch, descriptor_params
 from gtsweep.stages.detect import detect_timed
-from gtsweep.stages.applicability import applicability, describe_timed
 from gtsweep.stages.scales import FOREIGN_SCALES, OWN
 from gtsweep.stages.select import select_nms
 

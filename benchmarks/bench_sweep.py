@@ -29,9 +29,9 @@ import numpy as np
 from gtsweep.cli.overrides import compose_config
 from gtsweep.core.memory import PeakMemory, cpu_split, tree_cpu
 from gtsweep.datasets import load_dataset
-from gtsweep.orchestration.executor import connect, make_executor
-from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.experiments.kinds import run_sweep
+from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.orchestration.executor import connect, make_executor
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params, prepare_keypoints
 from gtsweep.stages.detect import DETECTORS
@@ -77,7 +77,8 @@ def floor(cfg, threads: int, part: int = 0, parts: int = 1, ready=None) -> tuple
                 kt, dt = extractor.compute(test, kt)
                 if dr is None or dt is None or len(dr) < 2:
                     continue
-                good = [m[0] for m in matcher.knnMatch(dt, dr, k=2) if len(m) == 2 and m[0].distance < 0.7 * m[1].distance]
+                good = [m[0] for m in matcher.knnMatch(dt, dr, k=2)
+                        if len(m) == 2 and m[0].distance < 0.7 * m[1].distance]
                 if len(good) >= 2:
                     src = np.float32([kt[m.queryIdx].pt for m in good])
                     dst = np.float32([kr[m.trainIdx].pt for m in good])
@@ -173,7 +174,8 @@ def bench(label: str, extra: list[str]) -> None:
         cfg1 = compose([f"cache.dir={work}/c1", "runner.num_cpus=1"])
         start1 = ray_start(cfg1)
         one, _, memory1 = timed_sweep(cfg1, work / "ray1")
-        print(f"[{label}] gtsweep Ray, 1 worker (cold):       {start1 + one:7.2f} s  ({(start1 + one) / bare1:.2f}x the "
+        print(f"[{label}] gtsweep Ray, 1 worker (cold):       {start1 + one:7.2f} s  "
+              f"({(start1 + one) / bare1:.2f}x the "
               f"1-thread floor; Ray's start {start1:.2f} s + the sweep {one:.2f} s, {one / bare1:.2f}x)")
         print(memory1)
         ray.shutdown()

@@ -11,10 +11,9 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
-
-import tempfile
 
 import cv2
 import skimage.data

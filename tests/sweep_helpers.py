@@ -111,9 +111,10 @@ def mlflow_server(uri: str, cwd: Path, *extra: str, timeout: float = 180) -> Ite
 def checked_jobs(args: list[str], tmp_path: Path, monkeypatch) -> list[list[str]]:
     """Run ``python -m gtsweep -m ARGS`` in ``tmp_path`` with a task that runs nothing: the sweeper's checks of
     every job (a mistake: SystemExit 2), and the overrides of the jobs it launched."""
+    from hydra.core.hydra_config import HydraConfig
+
     import gtsweep.cli.app
     from gtsweep.cli import main
-    from hydra.core.hydra_config import HydraConfig
 
     launched = []
     monkeypatch.chdir(tmp_path)

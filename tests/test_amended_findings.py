@@ -1,12 +1,11 @@
 """The amendment's tests (docs/statistics_design.md, A2-A6) on synthetic per-view rows: frozen picks tested on old
 half 1 plus every new image, restated findings on new images only, and the verdicts their wording allows."""
-import numpy as np
 import pytest
-from finding_fakes import Fakes, level
 
-from gtsweep.reproduction.findings import judge
+from finding_fakes import Fakes, level
 from gtsweep.report.pools import Data
 from gtsweep.reproduction import amended
+from gtsweep.reproduction.findings import judge
 
 IMAGES = 6 * 100  # 100 images per texture, 6 textures
 

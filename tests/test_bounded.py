@@ -11,9 +11,9 @@ import time
 from pathlib import Path
 
 import pytest
-from sweep_helpers import cli_env, session_ends, session_processes, tiny_overrides
 
 from gtsweep.core.errors import BadInput
+from sweep_helpers import cli_env, session_ends, session_processes, tiny_overrides
 
 
 def _start(args: list[str], cwd: Path, **kwargs) -> subprocess.Popen:
@@ -26,7 +26,8 @@ def test_a_second_owner_of_a_study_is_refused_and_a_dead_owner_frees_it(tmp_path
     from gtsweep.experiments.optimize.optuna_study import study_lock
 
     storage = f"sqlite:///{tmp_path}/optuna.db"
-    code = ("import sys, time; from gtsweep.experiments.optimize.optuna_study import own_study; own_study(sys.argv[1], 'same'); "
+    code = ("import sys, time; from gtsweep.experiments.optimize.optuna_study import own_study; "
+            "own_study(sys.argv[1], 'same'); "
             "print('owned', flush=True); time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code, storage], env=cli_env(), stdout=subprocess.PIPE,
                               text=True)
@@ -69,7 +70,6 @@ def test_two_identical_studies_at_once_one_runs_the_other_stops_in_one_line(tmp_
 # ---------------------------------------------------------------------------------------- item 6: smaller
 def test_non_finite_poses_are_bad_items_with_file_and_line(tmp_path):
     import dataset_fixtures as fx
-
     from gtsweep.datasets import load_dataset
 
     file = fx.csv_poses(tmp_path)

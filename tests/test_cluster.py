@@ -14,10 +14,10 @@ import time
 from pathlib import Path
 
 import pytest
-from sweep_helpers import cli_env, session_ends, tiny_overrides
 
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration.cluster import check_address, cluster_address
+from sweep_helpers import cli_env, session_ends, tiny_overrides
 
 
 class SilentServer:

@@ -9,16 +9,16 @@ from pathlib import Path
 
 import pytest
 import tomllib
-from sweep_helpers import checked_jobs, cli_env, compose_config, tiny_overrides
 
 from gtsweep.cli import overrides as cli
 from gtsweep.cli import search
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, PACKAGE_DIR, PROJECT_DIR
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.orchestration.grid import REGISTRIES
-from gtsweep.experiments.kinds import run_sweep
 from gtsweep.stages.detect import DETECTORS
+from sweep_helpers import checked_jobs, cli_env, compose_config, tiny_overrides
 
 MY_STAR = """\
 # detector/my_star.yaml: OpenCV's CenSurE with a smaller border
@@ -83,14 +83,16 @@ def test_user_configs_are_valid_choices(user_conf, tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("node, message", [
-    ({"factory": "cv2.NoSuchDetector_create", "orientation": False}, "factory 'cv2.NoSuchDetector_create' is refused (cv2 has no "
+    ({"factory": "cv2.NoSuchDetector_create", "orientation": False},
+     "factory 'cv2.NoSuchDetector_create' is refused (cv2 has no "
         "constructor 'NoSuchDetector_create')"),
     ({"factory": "nomodule.create", "orientation": False}, "factory 'nomodule.create' is refused"),
     ({"factory": "cv2.ORB_create", "orientation": False, "colour": True}, "unknown key 'colour'; its capabilities: "
                                                                           "orientation, response"),
     ({"factory": "cv2.ORB_create"}, "declared in YAML, it needs orientation"),
     ({"factory": "cv2.ORB_create", "orientation": "yes"}, "orientation must be true or false"),
-    ({"factory": "cv2.ORB_create", "orientation": True, "params": {"nfeatures": "x"}}, "rejects its default parameters {'nfeatures': 'x'}"),
+    ({"factory": "cv2.ORB_create", "orientation": True, "params": {"nfeatures": "x"}},
+     "rejects its default parameters {'nfeatures': 'x'}"),
 ])
 def test_bad_declarations_fail_in_one_line(node, message):
     cfg = {"detector": {"my_bad": {"params": {}, **node}}, "selector": {"nms": {"params": {}}},
@@ -158,8 +160,10 @@ def test_shell_completion_installs():
 def test_pyproject_ships_every_package_and_the_configs():
     setuptools = tomllib.loads((PROJECT_DIR / "pyproject.toml").read_text())["tool"]["setuptools"]
     # every folder, code or data only (setuptools warns "Package would be ignored" about an unlisted data folder)
-    folders = lambda root, name: {".".join((name, *d.relative_to(root).parts)) for d in [root, *root.rglob("*")]
-                                  if d.is_dir() and d.name != "__pycache__"}
+    def folders(root, name):
+        return {".".join((name, *d.relative_to(root).parts)) for d in [root, *root.rglob("*")]
+                if d.is_dir() and d.name != "__pycache__"}
+
     packages = folders(PACKAGE_DIR, "gtsweep") | folders(CONF_DIR, "gtsweep.conf")
     plugins = folders(PROJECT_DIR / "hydra_plugins", "hydra_plugins") - {"hydra_plugins"}  # a namespace package
     assert packages | plugins | {"gtsweep.conf.sweeps"} == set(setuptools["packages"])

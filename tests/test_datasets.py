@@ -5,24 +5,15 @@ from __future__ import annotations
 import math
 
 import cv2
-import dataset_fixtures as fx
 import numpy as np
 import pytest
 import yaml
 
+import dataset_fixtures as fx
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import __main__ as stats_command
-from gtsweep.datasets import (
-    floors,
-    geometry,
-    layout,
-    load_dataset,
-    overlap,
-    photometric,
-    rotation_deg,
-    synthetic,
-)
+from gtsweep.datasets import floors, geometry, layout, load_dataset, overlap, photometric, rotation_deg, synthetic
 
 SMALL = {"loader": "synthetic", "textures": ["concrete", "gravel"], "view_size": [160, 120],
          "n_optimisation": 1, "n_synthetic": 1, "n_incremental": 3, "n_absolute": 3}

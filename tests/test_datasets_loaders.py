@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import os
 
-import dataset_fixtures as fx
 import pytest
 
+import dataset_fixtures as fx
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.datasets import load_dataset, overlap
 

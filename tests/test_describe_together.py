@@ -4,15 +4,15 @@ reference count, in one call per group (issue 25: a repeated per-image pass): th
 calls, bit for bit, and a sweep's cells are the same with ``runner.describe_together`` on or off."""
 import numpy as np
 import pytest
-from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation.reuse import describe_together
 from gtsweep.experiments.kinds import run_sweep
 from gtsweep.stages import describe as describe_stage
-from gtsweep.stages.describe import DESCRIPTORS, describe_batch, describe_timed
 from gtsweep.stages import keypoints as kp
+from gtsweep.stages.describe import DESCRIPTORS, describe_batch, describe_timed
 from gtsweep.stages.detect import detect
+from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,9 @@ import pytest
 from gtsweep.cli.overrides import compose_config
 from gtsweep.core.errors import BadInput
 from gtsweep.experiments.pairs import runner
+from gtsweep.experiments.pairs.grid import Cell, Grid, build_grid
 from gtsweep.orchestration.cache import detection_key, detector_key_config
 from gtsweep.orchestration.executor import RayExecutor, SerialExecutor
-from gtsweep.experiments.pairs.grid import Cell, Grid, build_grid
 from gtsweep.orchestration.shards import shard_kind
 from gtsweep.stages import device as devices
 from gtsweep.stages import gpu_tolerance as tolerance

@@ -87,6 +87,7 @@ def _compose(args: list[str], monkeypatch) -> None:
     from gtsweep.cli import main
 
     monkeypatch.setattr(gtsweep.cli.app, "app", lambda cfg: None)
-    args = [a for i, a in enumerate(args) if a not in ("--cfg", "-c") and (i == 0 or args[i - 1] not in ("--cfg", "-c"))]
+    flags = ("--cfg", "-c")
+    args = [a for i, a in enumerate(args) if a not in flags and (i == 0 or args[i - 1] not in flags)]
     multirun = [] if {"-m", "--multirun"} & set(args) else ["-m"]  # --cfg job: the same composition
     main([*multirun, *args, "mlflow.enabled=false", "hydra/hydra_logging=none", "hydra/job_logging=none"])

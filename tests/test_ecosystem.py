@@ -9,12 +9,12 @@ import pandas as pd
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.experiments.optimize.tuned_files import storage_label
-from gtsweep.orchestration import dashboard, executor
 from gtsweep.experiments.kinds import combine_multirun as combine
+from gtsweep.experiments.optimize.tuned_files import storage_label
+from gtsweep.experiments.pairs.grid import Cell
+from gtsweep.orchestration import dashboard, executor
 from gtsweep.report.combine import mean_summary
 from gtsweep.report.tables import sample_note
-from gtsweep.experiments.pairs.grid import Cell
 from gtsweep.tracking.tags import cell_names, overrides_name
 
 

@@ -14,10 +14,10 @@ import pytest
 from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable
 from gtsweep.evaluation.views import make_shard
 from gtsweep.experiments.pairs import tasks
-from gtsweep.orchestration.tasks import failure
-from gtsweep.orchestration.executor import SerialExecutor, make_executor
 from gtsweep.experiments.pairs.runner import submit
+from gtsweep.orchestration.executor import SerialExecutor, make_executor
 from gtsweep.orchestration.shards import load_shards
+from gtsweep.orchestration.tasks import failure
 
 
 def test_serial_runs_in_submission_order_when_results_are_read():
@@ -66,7 +66,7 @@ def test_serial_keeps_a_result_only_while_a_handle_needs_it():
         executor.submit(isinstance, blob, Blob, tag=i)
     del blob
     alive = []
-    for tag, result in executor.results():
+    for _tag, result in executor.results():
         gc.collect()
         alive.append(sum(ref() is not None for ref in made))
         assert result is True

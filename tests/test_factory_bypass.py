@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from sweep_helpers import cli_env, tiny_overrides
 
 from gtsweep.core import factories, plugins
 from gtsweep.core.configguard import check_config_files
 from gtsweep.core.errors import BadInput
+from sweep_helpers import cli_env, tiny_overrides
 
 TOUCH = {"command": "touch PWNED"}
 SHELL = {"args": "touch PWNED", "shell": True}

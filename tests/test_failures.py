@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+
 from sweep_helpers import cli_env, run_cli
 
 pytestmark = pytest.mark.slow

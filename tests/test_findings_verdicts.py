@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 import pytest
-from finding_fakes import Fakes, level, outcomes
 
+from finding_fakes import Fakes, level, outcomes
 from gtsweep.reproduction.findings import FINDINGS, check
 from gtsweep.stages.detect import DETECTORS
 
@@ -281,8 +281,8 @@ def test_no_number_of_images_decides_an_interval_over_the_methods_compared():
     (round 3's numbers: -0.333 [-1.474, +0.643] over 9 pairings)."""
     from gtsweep.evaluation.statistics import Comparison
     from gtsweep.evaluation.verdicts import Claim, images_to_decide
-    from gtsweep.reproduction.findings import Finding
     from gtsweep.reproduction.command import _more
+    from gtsweep.reproduction.findings import Finding
 
     spearman = Comparison("Spearman difference, bootstrap over pairings", -0.333, math.nan, -1.474, 0.643, n=9)
     assert images_to_decide(Claim("rho", spearman, "beats", 1 / 60, images_narrow=False), 0.05) == math.inf

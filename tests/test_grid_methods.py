@@ -2,15 +2,15 @@
 matcher and estimator, the survey's cells unchanged, and what results, MLflow names and the report carry."""
 import pandas as pd
 import pytest
-from sweep_helpers import compose_config, read_cells, tiny_overrides
 
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.evaluation import reuse
-from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.experiments.kinds import run_sweep
+from gtsweep.experiments.pairs.grid import build_grid
 from gtsweep.report.tables import build_tables, table_cells
 from gtsweep.tracking.tags import cell_names
+from sweep_helpers import compose_config, read_cells, tiny_overrides
 
 PARAMS = {"params": {}}
 
@@ -67,7 +67,8 @@ def test_a_forced_flann_index_on_binary_descriptors_is_na():
 
 
 def test_unknown_names_bad_values_and_moved_settings_are_one_line():
-    with pytest.raises(UnknownMethod, match="unknown matcher 'knn'; valid choices: bf_ratio, flann, lightglue, mutual_nn"):
+    with pytest.raises(UnknownMethod,
+                       match="unknown matcher 'knn'; valid choices: bf_ratio, flann, lightglue, mutual_nn"):
         build_grid(_cfg(matcher={"knn": PARAMS}))
     with pytest.raises(UnknownMethod, match="unknown estimator 'lo_ransac'"):
         build_grid(_cfg(estimator={"lo_ransac": PARAMS}))

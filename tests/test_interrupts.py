@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+
 from sweep_helpers import cli_env, run_cli, session_ends, tiny_overrides
 
 pytestmark = pytest.mark.slow
@@ -168,7 +169,8 @@ def test_an_interrupted_study_is_killed_cleanly(tmp_path, existing_store):
     uri = existing_store(tmp_path / "mlflow.db", tmp_path)
     args = tiny_overrides(tmp_path, "experiment=optimize", "detector=[fast]", "runner.backend=serial",
                           "experiment.n_trials=200", "experiment.n_startup_trials=2",
-                          f"experiment.storage=sqlite:///{tmp_path}/optuna.db", f"experiment.tuned_root={tmp_path}/conf",
+                          f"experiment.storage=sqlite:///{tmp_path}/optuna.db",
+                          f"experiment.tuned_root={tmp_path}/conf",
                           f"mlflow.tracking_uri={uri}")
 
     def trial_logged() -> bool:

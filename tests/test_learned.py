@@ -12,12 +12,12 @@ import torch
 
 from gtsweep.core.errors import NotApplicable
 from gtsweep.stages import keypoints as kp
+from gtsweep.stages.applicability import applicability as pairing_applicability
 from gtsweep.stages.describe import DESCRIPTORS, describe
 from gtsweep.stages.detect import DETECTORS, detect
+from gtsweep.stages.learned import DETECTIONS, Aliked, Detection, Detections, LearnedFeature
 from gtsweep.stages.lightglue import Side
 from gtsweep.stages.match import MATCHERS, applicability, match_sides
-from gtsweep.stages.applicability import applicability as pairing_applicability
-from gtsweep.stages.learned import DETECTIONS, Aliked, Detection, Detections, LearnedFeature
 from gtsweep.stages.torch_standin import deform_conv2d, install
 
 LEARNED = ("aliked_n16", "aliked_n16rot", "disk")

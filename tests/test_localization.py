@@ -21,8 +21,7 @@ from gtsweep.datasets.synthetic import render_view
 from gtsweep.evaluation.evaluate import detect_and_select
 from gtsweep.experiments.localization.cells import build_localization_grid
 from gtsweep.stages.describe import describe
-from gtsweep.stages.localize import (Acceptance, FeatureMap, build_map, judge, localize, orientation, pose_columns,
-                                     vote)
+from gtsweep.stages.localize import Acceptance, FeatureMap, build_map, judge, localize, orientation, pose_columns, vote
 from gtsweep.stages.match import MATCHERS
 from gtsweep.stages.pose import ESTIMATORS
 
@@ -238,9 +237,8 @@ def test_localization_on_a_real_data_set_maps_every_floor_found(tmp_path):
     """``experiment=localization dataset=microgps dataset.root=...``: every texture folder is a map (the embedded
     data set's three floor names are not asked of a real one); ``dataset.textures`` still picks."""
     from dataset_fixtures import microgps
-    from sweep_helpers import compose_config
-
     from gtsweep.datasets.mapping import EMBEDDED_TEXTURES, embedded_textures
+    from sweep_helpers import compose_config
 
     microgps(tmp_path, "cs4_hallway_long_packed", n=6)
     microgps(tmp_path, "fc_hallway_long_packed", n=5)

@@ -107,5 +107,6 @@ def test_registry_params_are_strict_and_checked():
         MATCHERS.get("flann").check({"key_size": 40})
     with pytest.raises(BadInput, match="algorithm must be one of auto, kdtree, lsh"):
         MATCHERS.get("flann").check({"algorithm": "linear"})
-    with pytest.raises(UnknownMethod, match="unknown matcher 'knn'; valid choices: bf_ratio, flann, lightglue, mutual_nn"):
+    with pytest.raises(UnknownMethod,
+                       match="unknown matcher 'knn'; valid choices: bf_ratio, flann, lightglue, mutual_nn"):
         MATCHERS.get("knn")

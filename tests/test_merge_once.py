@@ -9,9 +9,9 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from gtsweep.cli import overrides as cli
-from gtsweep.orchestration import schemas
 from gtsweep.core.registry import Method
 from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.orchestration import schemas
 from gtsweep.stages.detect import DETECTORS, detect_timed
 
 

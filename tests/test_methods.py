@@ -6,9 +6,10 @@ import yaml
 from gtsweep.core.errors import BadInput, NotApplicable, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.stages import keypoints as kp
+from gtsweep.stages.applicability import applicability
+from gtsweep.stages.applicability import describe_timed as describe_applicable
 from gtsweep.stages.describe import DESCRIPTORS, describe, descriptor_params
 from gtsweep.stages.detect import DETECTORS, detect
-from gtsweep.stages.applicability import applicability, describe_timed as describe_applicable
 from gtsweep.stages.select import select_nms
 
 DETECTOR_NAMES = ("harris", "gftt", "fast", "agast", "harris_laplace", "sift", "surf", "censure", "brisk", "orb",

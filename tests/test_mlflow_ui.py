@@ -17,9 +17,9 @@ import subprocess
 import sys
 
 import pytest
-from sweep_helpers import TINY_DATASET, cli_env, mlflow_server
 
 from gtsweep.tracking.views import VIEW_NAME, run_url
+from sweep_helpers import TINY_DATASET, cli_env, mlflow_server
 
 pytestmark = pytest.mark.slow
 

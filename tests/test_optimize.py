@@ -8,7 +8,6 @@ import mlflow
 import optuna
 import pytest
 import yaml
-from sweep_helpers import compose_config, run_cli, tiny_overrides
 
 from gtsweep.cli import overrides as cli
 from gtsweep.cli import search
@@ -16,12 +15,13 @@ from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.experiments.optimize.driver import main
 from gtsweep.experiments.optimize.objective import trial_metrics
-from gtsweep.experiments.optimize.tuned_files import tuned_node
+from gtsweep.experiments.optimize.optuna_study import open_study
 from gtsweep.experiments.optimize.search_space import parse_space
 from gtsweep.experiments.optimize.study_settings import read_settings
-from gtsweep.experiments.optimize.optuna_study import open_study
 from gtsweep.experiments.optimize.targets import Target, build_targets
+from gtsweep.experiments.optimize.tuned_files import tuned_node
 from gtsweep.experiments.pairs.grid import build_grid
+from sweep_helpers import compose_config, run_cli, tiny_overrides
 
 FAST = ["experiment=optimize", "detector=[fast]", "runner.backend=serial", "experiment.n_startup_trials=2",
         "experiment.transforms.rotation.strengths=[45]", "experiment.transforms.noise.strengths=[20]"]

@@ -5,16 +5,16 @@ import numpy as np
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
-from sweep_helpers import checked_jobs
 
 from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
-from gtsweep.orchestration import resume_pick
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.core.paths import CONF_DIR, SWEEPS_DIR
-from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash
 from gtsweep.experiments.pairs.grid import build_grid
+from gtsweep.orchestration import resume_pick
+from gtsweep.orchestration.cache import KeypointCache, detection_key, image_hash
 from gtsweep.orchestration.results import ResultStore, summarize
+from sweep_helpers import checked_jobs
 
 PARAMS = {"params": {}}
 

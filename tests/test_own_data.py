@@ -8,8 +8,8 @@ import sys
 import cv2
 import numpy as np
 import pytest
-from dataset_fixtures import OWN_VIEW, own_csv, own_csv_rows
 
+from dataset_fixtures import OWN_VIEW, own_csv, own_csv_rows
 from gtsweep.core.errors import BadInput
 from gtsweep.datasets import load_dataset
 from gtsweep.datasets.posecheck import check_poses

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from sweep_helpers import run_cli
 
 from gtsweep.core.paths import PROJECT_DIR
+from sweep_helpers import run_cli
 
 SMALL = ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "dataset.n_incremental=1",
          "dataset.n_absolute=1", "dataset.n_synthetic=1", "dataset.n_optimisation=1", "runner.backend=serial",

@@ -11,11 +11,11 @@ from collections import namedtuple
 import cv2
 import numpy as np
 import pytest
-from sweep_helpers import cli_env
 
 from gtsweep.core.errors import BadInput
 from gtsweep.datasets.core import Sample, downscaled
 from gtsweep.datasets.pixels import check_budget, grid_cost, image_pixels
+from sweep_helpers import cli_env
 
 Cell = namedtuple("Cell", "detector descriptor")
 #: conf/config.yaml's grid: akaze, censure, sift x brief, orb, sift.

@@ -7,11 +7,11 @@ import os
 from pathlib import Path
 
 import pytest
-from sweep_helpers import cli_env, run_cli, tiny_overrides
 
 from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput
 from gtsweep.core.factories import resolve
+from sweep_helpers import cli_env, run_cli, tiny_overrides
 
 #: A module that leaves a mark when imported, and a "detector" factory that leaves another when called.
 PLANTED_MODULE = """

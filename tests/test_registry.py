@@ -5,8 +5,6 @@ import sys
 import numpy as np
 import pytest
 
-from sweep_helpers import checked_jobs
-
 from gtsweep.cli import overrides as cli
 from gtsweep.core.errors import BadInput, GtsweepError, NotApplicable, UnknownMethod
 from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line
@@ -17,6 +15,7 @@ from gtsweep.orchestration.grid import resolve_group
 from gtsweep.stages.describe import DESCRIPTORS, DescriptorSpec, describe
 from gtsweep.stages.detect import DETECTORS, DetectorSpec, detect, probe_image
 from gtsweep.stages.select import SELECTORS, select
+from sweep_helpers import checked_jobs
 
 FAMILIES = {"detector": (DETECTORS, DetectorSpec), "descriptor": (DESCRIPTORS, DescriptorSpec),
             "selector": (SELECTORS, Method), "transform": (TRANSFORMS, Method), "dataset loader": (DATASETS, Method)}

@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sweep_helpers import assert_same_cells, compose_config, run_cli, tiny_overrides
 
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.orchestration import cache
 from gtsweep.orchestration.results import ResultStore, summary_table
-from gtsweep.experiments.kinds import run_sweep
+from sweep_helpers import assert_same_cells, compose_config, run_cli, tiny_overrides
 
 SMALL = ["detector=[orb]", "descriptor=[orb]", "selector=[nms]", "transform=[incremental]", "runner.backend=serial",
          "mlflow.enabled=false", "report.plots=false"]
@@ -292,7 +292,6 @@ def test_leftovers_of_a_killed_renderer_are_removed(tmp_path):
 
 def test_a_bad_value_in_the_first_csv_row_is_a_bad_value(tmp_path):
     import dataset_fixtures as fx
-
     from gtsweep.datasets import load_dataset
 
     file = fx.csv_poses(tmp_path)
@@ -395,7 +394,7 @@ def test_dense_descriptor_maps_are_counted_in_run_json_and_a_failed_write_warns_
     gives one warning line and the same results."""
     grid = ["detector=[orb,fast]", "descriptor=[xfeat]", "selector=[nms]", "transform=[incremental]",
             "runner.backend=serial", "mlflow.enabled=false", "report.plots=false"]
-    first = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "first")
+    run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "first")
     record = json.loads((tmp_path / "first" / "run.json").read_text())
     views = record["dense_map_misses"]  # one network run per distinct image
     assert views > 0 and record["dense_map_hits"] == views and record["dense_map_write_errors"] == 0
@@ -406,7 +405,7 @@ def test_dense_descriptor_maps_are_counted_in_run_json_and_a_failed_write_warns_
     blocked.mkdir()
     (blocked / "dense").write_text("not a folder")
     capsys.readouterr()
-    outcome = run_sweep(compose_config(tiny_overrides(tmp_path, *grid, f"cache.dir={blocked}")), tmp_path / "b")
+    run_sweep(compose_config(tiny_overrides(tmp_path, *grid, f"cache.dir={blocked}")), tmp_path / "b")
     warnings = [line for line in capsys.readouterr().err.splitlines()
                 if line.startswith("gtsweep: warning:") and "dense descriptor maps" in line]
     assert len(warnings) == 1, warnings

@@ -6,12 +6,12 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
-from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.experiments.kinds import run_sweep
 from gtsweep.experiments.report_command import main
 from gtsweep.report.output import write_report
 from gtsweep.report.tables import build_tables, fmt
+from sweep_helpers import compose_config, tiny_overrides
 
 SERIAL = ["runner.backend=serial", "mlflow.enabled=false"]
 
@@ -146,8 +146,8 @@ def test_report_by_texture_with_intervals_values_and_ties(tmp_path, capsys):
 
 
 def test_report_by_texture_is_a_checked_option(tmp_path, capsys):
-    from gtsweep.orchestration.settings import check_settings
     from gtsweep.core.errors import GtsweepError
+    from gtsweep.orchestration.settings import check_settings
 
     with pytest.raises(GtsweepError, match="report.by"):
         check_settings({"report": {"by": "image", "alpha": 0.05, "plots": True}})
@@ -201,9 +201,8 @@ def test_multirun_report_takes_intervals_from_every_repeats_views(tmp_path):
     transforms, and its interval comes from resampling images, not from averaging the cells' intervals."""
     import json
 
-    from report_fakes import fake_cell
-
     from gtsweep.experiments.kinds import combine_multirun as combine
+    from report_fakes import fake_cell
 
     for job, sift in (("0", [1] * 15 + [0] * 5), ("1", [1] * 10 + [0] * 10)):
         directory = tmp_path / job

@@ -2,13 +2,13 @@
 findings nor the ties with the best pool cells of different variants (issues 18, 19)."""
 import pytest
 import yaml
-from report_fakes import fake_cell
 
-from gtsweep.reproduction.findings import check_findings, survey_variant
 from gtsweep.experiments.report_command import main
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import Scale, load_scale, scale_from_config
 from gtsweep.report.tables import build_tables, frame, load_summaries
+from gtsweep.reproduction.findings import check_findings, survey_variant
+from report_fakes import fake_cell
 
 TABLE4 = "CenSurE with ORB/BRIEF/LATCH is best on incremental pairs (Table 4)"
 SURVEY_CONFIG = {"dataset": {"loader": "synthetic", "view_size": [1288, 964], "px_per_mm": 6.25},
@@ -32,7 +32,8 @@ def test_scale_line_in_mm_hand_worked():
                                              "radius 30 px.")
     own = scale_from_config({**SURVEY_CONFIG, "dataset": {"loader": "csv", "px_per_mm": None,
                                                           "view_size": [320, 240]}})
-    assert own.line() == ("Scale (pixels only: the data set gives no dataset.px_per_mm): success radius 30 px; keypoint "
+    assert own.line() == ("Scale (pixels only: the data set gives no dataset.px_per_mm): success radius 30 px; "
+                          "keypoint "
                           "budget N = 1000 and < N KPs threshold 100 keypoints per 320×240 px view.")
     assert scale_from_config({**SURVEY_CONFIG, "dataset": {"loader": "csv", "px_per_mm": 20}}).line(
         detection=False) == "Scale (20 px/mm, the data set's): success radius 30 px = 1.5 mm."
@@ -128,6 +129,7 @@ def test_budget_per_area_and_no_selection_are_stated():
 def test_scale_of_the_composed_survey_and_localization_configs():
     """What the command line hands the report: the resolved config of ``dataset=survey`` (and of localization)."""
     from omegaconf import OmegaConf
+
     from sweep_helpers import compose_config
 
     survey = scale_from_config(OmegaConf.to_container(compose_config(["dataset=survey"]), resolve=True))

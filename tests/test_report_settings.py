@@ -4,9 +4,9 @@ import json
 
 import pandas as pd
 import pytest
-from report_fakes import fake_cell
 
 from gtsweep.experiments.kinds import combine_multirun as combine
+from report_fakes import fake_cell
 
 
 def _job(root, name, setting, censure_sift):
@@ -113,8 +113,8 @@ def test_failed_cells_end_the_multirun_in_1_even_when_combining_breaks(tmp_path,
     from omegaconf import OmegaConf
 
     from gtsweep.cli.multirun import MultirunReport
-    from gtsweep.orchestration.results import ResultStore
     from gtsweep.experiments import kinds
+    from gtsweep.orchestration.results import ResultStore
 
     _job(tmp_path, "0", "own", [1] * 18 + [0] * 2)
     error = {"key": "msd__nms__sift__incremental", "status": "error", "experiment": "pose", "reason": "octaves",

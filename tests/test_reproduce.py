@@ -2,11 +2,11 @@
 survey's own tables (no per-view rows: not testable, numbers shown) and the REPRODUCTION.md writer on fake runs."""
 import pandas as pd
 import pytest
-from report_fakes import fake_cell
 
-from gtsweep.reproduction.findings import FINDINGS, check_findings
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries, paper
+from gtsweep.reproduction.findings import FINDINGS, check_findings
+from report_fakes import fake_cell
 
 
 def _run(directory):
@@ -146,10 +146,9 @@ def test_document_is_rebuilt_from_a_finished_reproduction(tmp_path):
     """--document-only: REPRODUCTION.md from saved measurements and cells, with paper numbers, findings and notes."""
     import json
 
-    from sweep_helpers import compose_config, tiny_overrides
-
     from gtsweep.experiments.kinds import run_sweep
     from gtsweep.reproduction import command as reproduce
+    from sweep_helpers import compose_config, tiny_overrides
 
     work, docs = tmp_path / "work", tmp_path / "docs"
     output = work / "table4_incremental"

@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.reproduction import rounds as preset_runs
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import load_summaries
+from gtsweep.reproduction import rounds as preset_runs
 from gtsweep.reproduction import state as states
 from gtsweep.reproduction.collect import collect, done_units
 from gtsweep.reproduction.design import Unit, design_digest, rebuild_units

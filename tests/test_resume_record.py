@@ -11,11 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
-from sweep_helpers import run_cli
-from test_failures import _assert_true_record, _runs, _sweep
 
 from gtsweep.orchestration.resume_pick import pick
 from gtsweep.tracking.closing import LEFT_RUNNING, REASON_TAG, RESUMED_AFTER_TAG, clear_reason, mark_ended, reopen
+from sweep_helpers import run_cli
+from test_failures import _assert_true_record, _runs, _sweep
 
 
 def _record(directory: Path, key: str = "k", cells: int = 0, when: float = 0) -> Path:

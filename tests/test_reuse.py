@@ -4,9 +4,9 @@ import pytest
 
 from gtsweep.core.errors import NotApplicable
 from gtsweep.evaluation.reuse import DescribeOnce
+from gtsweep.stages.applicability import describe_timed
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import detect_timed
-from gtsweep.stages.applicability import describe_timed
 from gtsweep.stages.select import select
 
 

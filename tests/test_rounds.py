@@ -6,8 +6,8 @@ import json
 import pandas as pd
 
 from gtsweep.reproduction import rounds as preset_runs
-from gtsweep.reproduction.rounds import restriction, run_rounds
 from gtsweep.reproduction.findings import FINDINGS
+from gtsweep.reproduction.rounds import restriction, run_rounds
 from gtsweep.reproduction.sequential import needed_cells
 
 

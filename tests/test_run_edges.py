@@ -8,12 +8,12 @@ import sys
 import textwrap
 
 import pytest
-from sweep_helpers import cli_env, tiny_overrides
 
 from gtsweep.cli.overrides import compose_config
 from gtsweep.core import interrupts
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration import dashboard
+from sweep_helpers import cli_env, tiny_overrides
 
 
 def test_the_dashboard_without_its_packages_is_refused_in_the_pre_flight(monkeypatch):

@@ -10,16 +10,16 @@ import mlflow
 import numpy as np
 import pandas as pd
 import pytest
-from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.evaluation import schema
+from gtsweep.experiments.kinds import run_sweep
 from gtsweep.orchestration.cache import library_versions
 from gtsweep.orchestration.results import summarize, summary_table
-from gtsweep.experiments.kinds import run_sweep
 from gtsweep.report.output import write_report
 from gtsweep.tracking.readback import summaries_from_mlflow
 from gtsweep.tracking.sweep import SweepTracker
+from sweep_helpers import compose_config, tiny_overrides
 
 NAN = math.nan
 
@@ -152,7 +152,8 @@ def test_one_schema_entry_reaches_results_mlflow_and_report(toy, tmp_path, monke
     client = mlflow.tracking.MlflowClient(uri)
     (child,) = client.search_runs([tracker.experiment_id], f"tags.mlflow.parentRunId = '{tracker.parent_id}'")
     assert child.data.metrics["match_share"] == pytest.approx(expected)
-    assert sorted(m.step for m in client.get_metric_history(child.info.run_id, "curves/match_share_vs_strength")) == [0, 90]
+    history = client.get_metric_history(child.info.run_id, "curves/match_share_vs_strength")
+    assert sorted(m.step for m in history) == [0, 90]
 
     for source, summaries in (("files", outcome.summaries), ("mlflow", summaries_from_mlflow(tracker.parent_id, uri))):
         _, files = write_report(summaries, tmp_path / source, plots=False)

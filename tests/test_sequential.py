@@ -7,10 +7,10 @@ import pytest
 
 from gtsweep.evaluation.statistics import Comparison
 from gtsweep.evaluation.verdicts import BEATS, Claim
-from gtsweep.reproduction.rounds import run_rounds
-from gtsweep.reproduction.findings import Hypothesis
 from gtsweep.report.pools import cells_where, pairings
 from gtsweep.report.samples import matrices
+from gtsweep.reproduction.findings import Hypothesis
+from gtsweep.reproduction.rounds import run_rounds
 from gtsweep.reproduction.sequential import Sequential
 
 TINY = ["dataset.textures=[gravel,wood]", "dataset.view_size=[320,240]", "runner.backend=serial",

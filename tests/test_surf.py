@@ -1,4 +1,5 @@
-"""Tests for gtsweep.stages.surf: the NumPy SURF (Bay et al., CVIU 2008) against hand-worked values and OpenCV's own SURF.
+"""Tests for gtsweep.stages.surf: the NumPy SURF (Bay et al., CVIU 2008) against hand-worked values and OpenCV's own
+SURF.
 
 ``tests/data/surf_reference.npz`` holds OpenCV's results (a nonfree build) on two 320x240 texture crops; it is
 made by ``tools/make_surf_reference.py``.
@@ -12,20 +13,9 @@ from scipy.spatial import cKDTree
 
 from gtsweep.core.errors import BadInput
 from gtsweep.stages.surf import NumpySURF, SURF_create, opencv_surf_available
-from gtsweep.stages.surf.describe import (
-    _area_resize,
-    descriptor_weights,
-    orientation_samples,
-    orientations,
-)
-from gtsweep.stages.surf.hessian import (
-    DXX_BOXES,
-    box_response,
-    integral_image,
-    layer_det_and_trace,
-    scale_boxes,
-    solve_offsets,
-)
+from gtsweep.stages.surf.describe import _area_resize, descriptor_weights, orientation_samples, orientations
+from gtsweep.stages.surf.hessian import (DXX_BOXES, box_response, integral_image, layer_det_and_trace, scale_boxes,
+                                         solve_offsets)
 
 REFERENCE = Path(__file__).parent / "data" / "surf_reference.npz"
 IMAGES = ("gravel", "brick")

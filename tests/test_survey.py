@@ -15,7 +15,6 @@ from gtsweep.datasets import capture, floors, geometry, layout, synthetic
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.__main__ import revisit_line
 
-
 SURVEY = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
 #: Every per-frame effect neutral: fixed exposure filling the well, no motion, light or tilt; the sensor stays.
 NEUTRAL = {"speed_m_s": 0.0, "exposure_ms": 1.0, "brightness_jitter": 0.0, "lens_vignetting": False,

@@ -11,16 +11,10 @@ import time
 from pathlib import Path
 
 import pytest
-from sweep_helpers import (
-    assert_same_cells,
-    cli_env,
-    compose_config,
-    run_cli,
-    tiny_overrides,
-)
 
-from gtsweep.orchestration import cache
 from gtsweep.experiments.kinds import run_sweep
+from gtsweep.orchestration import cache
+from sweep_helpers import assert_same_cells, cli_env, compose_config, run_cli, tiny_overrides
 
 SERIAL = "runner.backend=serial"
 
@@ -99,7 +93,8 @@ def test_unavailable_method_stops_before_any_result_file(tmp_path, monkeypatch):
     def not_installed(**params):
         raise ImportError("No module named 'nonfree_sift'")
 
-    monkeypatch.setitem(DESCRIPTORS._methods, "sift", dataclasses.replace(DESCRIPTORS.get("sift"), create=not_installed))
+    missing = dataclasses.replace(DESCRIPTORS.get("sift"), create=not_installed)
+    monkeypatch.setitem(DESCRIPTORS._methods, "sift", missing)
     grid = ["detector=[censure]", "descriptor=[brief,sift]", "transform=[incremental]", "mlflow.enabled=false"]
     with pytest.raises(GtsweepError, match="descriptor 'sift' is not available: No module named 'nonfree_sift'"):
         run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "run")
@@ -240,11 +235,10 @@ def test_the_xfeat_column_runs_the_network_once_per_image_with_the_same_results(
     monkeypatch.setattr(xfeat, "run_network", lambda *a, **k: calls.append(1) or network(*a, **k))
     grid = [SERIAL, "detector=[fast,censure]", "descriptor=[xfeat]", "selector=[nms]", "transform=[incremental]",
             "mlflow.enabled=false"]
-    cached = run_sweep(compose_config(tiny_overrides(tmp_path / "a", *grid)), tmp_path / "a" / "run")
+    run_sweep(compose_config(tiny_overrides(tmp_path / "a", *grid)), tmp_path / "a" / "run")
     images = 2 * 2 * 2  # 2 textures x 2 incremental pairs x 2 images
     assert len(calls) == images and len(list((tmp_path / "a" / "cache" / "dense").rglob("*.npz"))) == images
     del calls[:]
-    uncached = run_sweep(compose_config(tiny_overrides(tmp_path / "b", *grid, "cache.enabled=false")),
-                         tmp_path / "b" / "run")
+    run_sweep(compose_config(tiny_overrides(tmp_path / "b", *grid, "cache.enabled=false")), tmp_path / "b" / "run")
     assert len(calls) == 2 * images  # once per image and detector
     assert_same_cells(tmp_path / "a" / "run", tmp_path / "b" / "run")

@@ -4,7 +4,8 @@ import json
 import pandas as pd
 import pytest
 
-from gtsweep.reproduction import rounds as preset_runs, task_costs
+from gtsweep.reproduction import rounds as preset_runs
+from gtsweep.reproduction import task_costs
 
 
 def _cell(out, descriptor, rows, detector="orb"):

@@ -8,12 +8,12 @@ import urllib.request
 import mlflow
 import pytest
 from omegaconf import OmegaConf
-from sweep_helpers import compose_config, mlflow_server, tiny_overrides
 
-from gtsweep.orchestration.cache import library_versions
 from gtsweep.experiments.kinds import run_sweep
+from gtsweep.orchestration.cache import library_versions
 from gtsweep.tracking.store import flatten
 from gtsweep.tracking.sweep import SweepTracker, step_scale
+from sweep_helpers import compose_config, mlflow_server, tiny_overrides
 
 GRID = ["detector=[akaze,censure]", "descriptor=[akaze,brief]", "selector=[nms]",
         "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]

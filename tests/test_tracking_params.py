@@ -7,21 +7,14 @@ import json
 import mlflow
 import pytest
 from mlflow.tracking import MlflowClient
-from sweep_helpers import compose_config, tiny_overrides
 
 from gtsweep.experiments.pairs.grid import Cell
 from gtsweep.tracking.figures import strength_figure
 from gtsweep.tracking.metricnames import mlflow_name, summary_name
-from gtsweep.tracking.params import (
-    batches,
-    cell_params,
-    config_params,
-    method_tags,
-    options_by_name,
-    parsed_config,
-)
+from gtsweep.tracking.params import batches, cell_params, config_params, method_tags, options_by_name, parsed_config
 from gtsweep.tracking.tags import child_name, cluster_tags, pairing_label, unique_name
 from gtsweep.tracking.views import VIEW_KEY, pairings_state, runs_url, save_pairings_view
+from sweep_helpers import compose_config, tiny_overrides
 
 
 @pytest.fixture
@@ -141,8 +134,8 @@ def test_sweep_runs_filter_by_every_dimension_and_read_back(tmp_path, monkeypatc
     gets the intervals back from the ci/ metrics."""
     from omegaconf import OmegaConf
 
-    from gtsweep.orchestration.cache import library_versions
     from gtsweep.experiments.kinds import run_sweep
+    from gtsweep.orchestration.cache import library_versions
     from gtsweep.tracking.readback import summaries_from_mlflow, views_from_mlflow
     from gtsweep.tracking.sweep import SweepTracker
 
@@ -181,10 +174,8 @@ def test_cluster_of_the_run_record_becomes_tags():
 def test_a_composed_job_names_its_methods_as_written(monkeypatch, tmp_path):
     """Hydra's defaults list of a real composition: a method file with a defaults list (its schema first) is its
     own ``_self_`` entry there, and still names the option as written (``tuned/sift``)."""
-    from hydra import compose
+    from hydra import compose, initialize_config_module
     from hydra.core.hydra_config import HydraConfig
-
-    from hydra import initialize_config_module
 
     from gtsweep.cli.overrides import register_all
     from gtsweep.cli.search import PRIMARY_MODULE, PRIMARY_NAME

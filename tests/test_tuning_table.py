@@ -7,7 +7,8 @@ from gtsweep.experiments.optimize.tuned_files import defaults_trial, stop_reason
 from gtsweep.report.tuning import read_header, tuning_table
 
 SETTINGS = {"objective": "repeatability", "min_keypoints": 100, "storage": "sqlite:///.gtsweep_cache/optuna.db",
-            "n_trials": 200, "patience": 20, "min_improvement": 0.005, "selector": {"name": "anms", "params": {"n": 1000}}}
+            "n_trials": 200, "patience": 20, "min_improvement": 0.005,
+            "selector": {"name": "anms", "params": {"n": 1000}}}
 
 
 def _trial(number, score, repeatability, few, defaults=False):
@@ -51,4 +52,5 @@ def test_an_older_header_gives_what_it_states(tmp_path):
         "# Data set fingerprint 47746f8e4d9c3386.\n"
         "sift:\n  params:\n    contrastThreshold: 0.0138\n  search_space:\n"
         "    contrastThreshold: {type: float, low: 0.005, high: 0.1}\n")
-    assert tuning_table(tmp_path).splitlines()[2] == "| sift | 10 | ? | ? | 0 of 216 | 0.72 | contrastThreshold=0.0138 |"
+    expected = "| sift | 10 | ? | ? | 0 of 216 | 0.72 | contrastThreshold=0.0138 |"
+    assert tuning_table(tmp_path).splitlines()[2] == expected

@@ -8,11 +8,11 @@ from collections import Counter
 import cv2
 import pandas as pd
 import pytest
-from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
 
 import gtsweep.evaluation.evaluate as evaluate
 from gtsweep.datasets import load_dataset
 from gtsweep.experiments.kinds import run_sweep
+from sweep_helpers import assert_same_cells, compose_config, tiny_overrides
 
 BASE = ["runner.backend=serial", "mlflow.enabled=false", "detector=[orb]", "descriptor=[brief]", "selector=[nms]",
         "transform=[rotation,incremental]", "transform.rotation.strengths=[0,45]", "experiment=pose",

@@ -114,6 +114,7 @@ def test_a_kill_9_of_a_ray_sweep_leaves_no_ray_agent_behind(tmp_path):
     import time
 
     import pytest
+
     from sweep_helpers import session_ends, session_processes, tiny_overrides
 
     pytest.importorskip("ray")

@@ -107,7 +107,8 @@ def export(xfeat: XFeat, path: Path) -> None:
             dynamic_axes={"image": {2: "height", 3: "width"}, "feats": {2: "h8", 3: "w8"},
                           "keypoints": {2: "h8", 3: "w8"}, "heatmap": {2: "h8", 3: "w8"}},
         )
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, sha256 {hashlib.sha256(path.read_bytes()).hexdigest()[:16]})")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, sha256 {digest})")
 
 
 def check_against_torch(xfeat: XFeat, path: Path) -> None:

@@ -23,8 +23,8 @@ from typing import Any, Callable, Iterator
 
 import yaml
 
-from gtsweep.core.errors import BadInput
 from gtsweep.core.config import METHOD_GROUPS
+from gtsweep.core.errors import BadInput
 from gtsweep.core.searchpath import stray_tuned_files
 
 #: What a tuned file may set of a method: its parameters, their search space, a descriptor's per-detector params.

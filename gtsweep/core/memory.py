@@ -102,19 +102,19 @@ class PeakMemory:
             self.sample()
             self._stop.wait(self.interval)
 
-    def start(self) -> "PeakMemory":
+    def start(self) -> PeakMemory:
         self._thread = threading.Thread(target=self._loop, name="peak-memory", daemon=True)
         self._thread.start()
         return self
 
-    def stop(self) -> "PeakMemory":
+    def stop(self) -> PeakMemory:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
         self.sample()
         return self
 
-    def __enter__(self) -> "PeakMemory":
+    def __enter__(self) -> PeakMemory:
         return self.start()
 
     def __exit__(self, *exc) -> None:

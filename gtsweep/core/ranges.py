@@ -37,7 +37,9 @@ class Range(_Rule):
         kind = "an integer" if self.integer else "a number"
         low = "-inf" if self.low is None else f"{self.low:g}"
         high = "inf" if self.high is None else f"{self.high:g}"
-        span = f"{'(' if self.low_open or self.low is None else '['}{low}, {high}{')' if self.high_open or self.high is None else ']'}"
+        opening = "(" if self.low_open or self.low is None else "["
+        closing = ")" if self.high_open or self.high is None else "]"
+        span = f"{opening}{low}, {high}{closing}"
         return f"{kind} in {span}" + (" or null" if self.optional else "")
 
     def admits(self, value: Any) -> bool:

@@ -9,7 +9,8 @@ parameters pass unchanged; a script's partial ones are merged onto the defaults,
 onto a model's ``default_conf``): an unknown parameter or a value of the wrong type is a one-line
 :class:`~gtsweep.core.errors.BadInput`, never a silent extra keyword. A :class:`Registry` holds one family, with
 one lookup (:meth:`Registry.get`) that lists the valid names when a name is unknown. A method can also be declared
-in YAML alone (:meth:`Registry.declare`): a ``factory`` (a constructor's exact name), capabilities, and ``params`` as defaults.
+in YAML alone (:meth:`Registry.declare`): a ``factory`` (a constructor's exact name), capabilities, and ``params`` as
+defaults.
 """
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, Iterable, Iterator, Mapping, TypeVar
 
-from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
 from gtsweep.core import factories
+from gtsweep.core.errors import BadInput, GtsweepError, UnknownMethod
 
 #: The optional packages a method can need, by the name of their set: the modules the method imports. The one
 #: command that installs a set is :data:`INSTALL` (:mod:`gtsweep.install`).
@@ -139,7 +140,7 @@ def missing_modules(modules: Iterable[str]) -> list[str]:
     return missing
 
 
-def availability(registry: "Registry", names: Iterable[str] | None = None) -> tuple[list[str], dict[str, str]]:
+def availability(registry: Registry, names: Iterable[str] | None = None) -> tuple[list[str], dict[str, str]]:
     """Which of ``names`` (default: every registered method) this install can run, in order, and why not the
     others (``{name: reason}``). A name the registry does not know (a method declared in YAML) counts as runnable:
     its factory is checked when it is built."""

@@ -21,7 +21,6 @@ from hydra.plugins.config_source import ConfigLoadError, ConfigResult, ConfigSou
 from gtsweep.core.config import METHOD_GROUPS
 
 
-
 class TunedMethods(ConfigSource):
     """A directory (``tuned://DIR``) of which Hydra sees only ``<method group>/tuned/<name>.yaml``: what
     ``experiment=optimize`` writes. A preset (``sweeps/...``) or a group's own option planted there does not exist
@@ -130,7 +129,7 @@ def choose_options_with(function) -> None:
     _choosable["of"] = function
 
 
-def options_of(configs: "Configs", group: str) -> list[str]:
+def options_of(configs: Configs, group: str) -> list[str]:
     """What ``group=all`` and ``group=glob(...)`` choose from: the options of ``group`` on the search path."""
     return _choosable["of"](group, [name for name in configs.options(group) if name != ALL])
 
@@ -201,7 +200,7 @@ class Configs:
                         for entry in self.entries]
 
     @classmethod
-    def of(cls, sources) -> "Configs":
+    def of(cls, sources) -> Configs:
         """The configs of Hydra's own sources (a running composition's)."""
         found = cls(())
         found.sources = list(sources)

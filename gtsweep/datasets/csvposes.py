@@ -58,7 +58,8 @@ def read_rows(file: Path, problems: Problems) -> dict[str, list[Entry]]:
         row = dict(zip(columns, cells))
         values = floats([row["x"], row["y"], row["theta"], row.get("scale") or "1"])
         if not finite(values) or values[3] <= 0:
-            problems.report(where, f"x, y, theta, scale must be finite numbers (scale > 0), found {','.join(cells[1:])}")
+            found = ",".join(cells[1:])
+            problems.report(where, f"x, y, theta, scale must be finite numbers (scale > 0), found {found}")
             continue
         path = resolve_image(row["image"], [file.parent])
         if path is None:

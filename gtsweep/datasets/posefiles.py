@@ -9,7 +9,6 @@ alternating lines; a pose starting with ``*`` is marked incorrect by the data se
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Sequence

@@ -5,10 +5,10 @@ Per texture a floor is generated from the seed (:mod:`gtsweep.datasets.floors`),
 "captured" with sensor noise; absolute test views also get a different day's photometry
 (:mod:`gtsweep.datasets.photometric`). With a ``capture`` group (``dataset=survey``) every view is a frame of a
 moving camera instead (:mod:`gtsweep.datasets.capture`: motion blur, auto-exposure, the robot's lighting, shot
-and read noise, tilt folded into the pose), and absolute test views also a capture of another ``day``. Views are written once as PNGs with an ``index.json`` under
-``<cache_dir>/datasets/synthetic-<fingerprint>/`` (built in a temporary folder, then renamed, so an interrupted run never
-leaves half a data set); later loads only read the index. The temporary folder's name holds the writer's pid: the
-next load removes those of writers that died (killed mid-render).
+and read noise, tilt folded into the pose), and absolute test views also a capture of another ``day``. Views are written
+once as PNGs with an ``index.json`` under ``<cache_dir>/datasets/synthetic-<fingerprint>/`` (built in a temporary
+folder, then renamed, so an interrupted run never leaves half a data set); later loads only read the index. The
+temporary folder's name holds the writer's pid: the next load removes those of writers that died (killed mid-render).
 """
 from __future__ import annotations
 

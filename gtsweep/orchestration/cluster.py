@@ -77,10 +77,12 @@ def check_address(runner_cfg: Mapping) -> None:
             answer = _greet(connection, deadline)
     except OSError as e:
         reason = "timed out" if isinstance(e, socket.timeout) else e.strerror or str(e)
-        raise BadInput(f"cannot reach the Ray cluster at '{address}' ({address_source(runner_cfg)}) within {timeout:g} s "
+        raise BadInput(f"cannot reach the Ray cluster at '{address}' ({address_source(runner_cfg)}) within "
+                       f"{timeout:g} s "
                        f"(runner.connect_timeout_s): {reason}") from None
     if answer is None or answer[3] != HTTP2_SETTINGS:
-        raise BadInput(f"'{address}' ({address_source(runner_cfg)}) accepts connections but is not a Ray head: it did not "
+        raise BadInput(f"'{address}' ({address_source(runner_cfg)}) accepts connections but is not a Ray head: "
+                       f"it did not "
                        f"answer as Ray's GCS (gRPC) does within {timeout:g} s (runner.connect_timeout_s)")
 
 
@@ -93,7 +95,7 @@ def _greet(connection: socket.socket, deadline: float) -> bytes | None:
         connection.settimeout(max(deadline - time.monotonic(), 0.01))
         try:
             chunk = connection.recv(9 - len(head))
-        except socket.timeout:
+        except TimeoutError:
             return None
         if not chunk:
             return None

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import importlib.util
 import logging
 import os
 import signal
@@ -23,14 +22,8 @@ from typing import Any, Callable, Iterator, Mapping
 from gtsweep.core import plugins
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.interrupts import raise_pending
-from gtsweep.orchestration.cluster import (
-    address_source,
-    check_address,
-    cluster_address,
-    record_cluster,
-    record_serial,
-    this_machines_cluster,
-)
+from gtsweep.orchestration.cluster import (address_source, check_address, cluster_address, record_cluster,
+                                           record_serial, this_machines_cluster)
 from gtsweep.orchestration.dashboard import check_dashboard
 from gtsweep.orchestration.settings import default
 
@@ -265,9 +258,7 @@ def _token_auth_if_available() -> None:
     """Ray's own rule for a cluster found on this machine: token authentication when ``RAY_AUTH_MODE`` is unset
     and a token exists (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or ``~/.ray/auth_token``)."""
     try:
-        from ray._private.authentication.authentication_token_setup import (
-            maybe_enable_token_auth_if_token_available,
-        )
+        from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
     except ImportError:  # a Ray without token authentication
         return
     maybe_enable_token_auth_if_token_available(warn_if_disabled=False)

@@ -4,8 +4,8 @@ cell's key, methods, configuration and hash, written once), and the grid groups 
 A composed config brings each method's full parameters (Hydra merged its YAML and the command line onto its
 defaults: ``gtsweep.orchestration.schemas``); :meth:`~gtsweep.core.registry.Method.params` checks them strictly (and
 fills in the defaults for a config that has only some: a script's, a user's file without its schema), and the
-method is built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory`` declares a
-new method (:meth:`~gtsweep.core.registry.Registry.declare`); the grid carries these declarations
+method is built once, so that a parameter it rejects stops the sweep here, in one line. A node with a ``factory``
+declares a new method (:meth:`~gtsweep.core.registry.Registry.declare`); the grid carries these declarations
 (:attr:`MethodGrid.declared`) to every process that runs its tasks. A cell's identity is its methods and their full
 configuration, hashed; a resumed sweep keeps a finished cell only when that hash is unchanged. Each kind builds
 its own grid from these parts (``gtsweep.experiments.<kind>``).
@@ -23,7 +23,6 @@ from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS, descriptor_params
 from gtsweep.stages.detect import DETECTORS
 from gtsweep.stages.match import MATCHERS, SURVEY_MATCHER
-from gtsweep.stages.match import applicability as matcher_applicability
 from gtsweep.stages.pose import ESTIMATORS, SURVEY_ESTIMATOR
 from gtsweep.stages.select import SELECTORS
 

@@ -2,9 +2,10 @@
 
 Jobs that differ only in ``seed`` or ``dataset.seed`` are repeats of one setting. ``dataset.seed`` draws the images
 and pairs (another sample of the data); ``seed`` only the evaluation's random draws (RANSAC, the synthetic transforms'
-noise) on the same images, so its spread is RANSAC's alone: the summary's header says which one varied. each cell gets the mean of its metrics over the
-repeats (:func:`~gtsweep.report.breakdown.mean_summary`), their spread (sample standard deviation) and the number
-of repeats. Jobs that differ in anything else are separate settings (named by the overrides that differ, e.g.
+noise) on the same images, so its spread is RANSAC's alone: the summary's header says which one varied. Each cell gets
+the mean of its metrics over the repeats (:func:`~gtsweep.report.breakdown.mean_summary`), their spread (sample standard
+deviation) and the number of repeats. Jobs that differ in anything else are separate settings (named by the overrides
+that differ, e.g.
 ``selector.nms.params.n=500``), side by side.
 Written into ``<sweep dir>/combined/``::
 
@@ -55,7 +56,8 @@ def jobs_of(sweep_dir: Path) -> list[dict]:
     for job in jobs:
         seeds = {m["key"]: m["value"] for m in map(SEED.match, job["overrides"]) if m}
         job["seeds"] = seeds
-        job["seed"] = "/".join(seeds[k] for k in sorted(seeds)) if len(seeds) > 1 else int(next(iter(seeds.values()), 0))
+        job["seed"] = ("/".join(seeds[k] for k in sorted(seeds)) if len(seeds) > 1
+                       else int(next(iter(seeds.values()), 0)))
         job["setting"] = " ".join(o for o in job["overrides"] if o not in shared and not SEED.match(o)) or "all"
     return jobs
 

@@ -16,27 +16,13 @@ from typing import Callable
 
 from gtsweep.core.errors import GtsweepError
 from gtsweep.orchestration.results import by_variant
-from gtsweep.stages.select import SELECTORS
-from gtsweep.report.breakdown import (
-    strength_table,
-    texture_summaries,
-    texture_views,
-    textures,
-)
+from gtsweep.report.breakdown import strength_table, texture_summaries, texture_views, textures
 from gtsweep.report.labels import shown_label, variant_slug
-from gtsweep.report.samples import Views, load_views
 from gtsweep.report.rotation import write_rotation
-from gtsweep.report.scale import Scale, annotate, load_scale, scale_from_config
-from gtsweep.report.tables import (
-    ALPHA,
-    BY,
-    Table,
-    build_tables,
-    load_summaries,
-    table_cells,
-    write_tables,
-)
-
+from gtsweep.report.samples import Views
+from gtsweep.report.scale import Scale, annotate
+from gtsweep.report.tables import ALPHA, BY, Table, build_tables, table_cells, write_tables
+from gtsweep.stages.select import SELECTORS
 
 #: The survey tables whose entries are pairings (a detector's selector is not a column of them).
 PAIRING_TABLES = ("table4", "table5", "table6", "table7")

@@ -3,7 +3,8 @@
 ``python -m gtsweep -m sweeps=table4_incremental experiment.foreign_scale=own,octave0`` runs the same grid on the
 same views under each setting; the combined output (:mod:`gtsweep.report.combine`) then holds, per pose-success
 cell (detector, descriptor, transform), each setting's value with its 95 % interval, the paired test of every
-setting against the first one (the first job's: ``own`` above) on the views both evaluated (exact McNemar for one view per pair,
+setting against the first one (the first job's: ``own`` above) on the views both evaluated (exact McNemar for one view
+per pair,
 :func:`gtsweep.report.samples.compare`), and the survey's number where it has one. A cell *moves* when that
 test rejects equality at ``alpha``. Written to ``combined/settings.md`` when the jobs have more than one setting.
 """

@@ -350,7 +350,8 @@ def build_tables(summaries: list[dict], views: Views | None = None, alpha: float
     groups = by_variant(summaries)
     if len(groups) == 1:
         return _survey_tables(summaries, views, alpha)
-    return [Table(f"{t.name}_{variant_slug(variant)}", f"{t.title}; {variant_label(variant)}", t.cells, t.values, t.ties)
+    return [Table(f"{t.name}_{variant_slug(variant)}", f"{t.title}; {variant_label(variant)}", t.cells, t.values,
+                  t.ties)
             if variant_slug(variant) else t for variant, part in groups.items()
             for t in _survey_tables(part, views, alpha)]
 

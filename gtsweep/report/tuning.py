@@ -71,5 +71,6 @@ def tuning_table(directory: Path) -> str:
     for r in rows:
         values = ", ".join(f"{k}={_value(v)}" for k, v in r["values"].items())
         lines.append(f"| {r['detector']} | {r.get('trials', '?')} | {r.get('stop', '?')} | {r.get('selector', '?')} "
-                     f"| {_change(r, 'few', str)} of {r.get('views', '?')} | {_change(r, 'repeatability', lambda x: f'{x:.2f}')} | {values} |")
+                     f"| {_change(r, 'few', str)} of {r.get('views', '?')} "
+                     f"| {_change(r, 'repeatability', lambda x: f'{x:.2f}')} | {values} |")
     return "\n".join(lines)

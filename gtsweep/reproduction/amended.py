@@ -17,11 +17,11 @@ from dataclasses import replace
 import numpy as np
 
 from gtsweep.evaluation.verdicts import AMONG, BEATS, WITHIN, Claim
-from gtsweep.reproduction.findings import (AMBIGUITY_MARGIN, FINDINGS, REPEATABILITY_MARGIN, SUCCESS_MARGIN, SYNTHETIC,
-                                     pair_claim)
 from gtsweep.report.pools import best, detection_cells, keeps_all, median_entry, pairings, table3
 from gtsweep.report.samples import against
 from gtsweep.reproduction.design import FROZEN
+from gtsweep.reproduction.findings import (AMBIGUITY_MARGIN, FINDINGS, REPEATABILITY_MARGIN, SUCCESS_MARGIN, SYNTHETIC,
+                                           pair_claim)
 from gtsweep.reproduction.state import item_number
 
 #: Images (Tables 2, 3, 6) or pairs (Table 4) per texture that rounds 1-5 evaluated for the picks: a number at or

@@ -21,11 +21,11 @@ from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import SIGNALS, Interrupted, on_signal
 from gtsweep.core.paths import CONF_DIR, DEFAULT_CACHE_DIR, PROJECT_DIR
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.reproduction.tuned import tuned_digest, tuning_fingerprint
 from gtsweep.report.tables import ALPHA
 from gtsweep.reproduction import state as states
 from gtsweep.reproduction.collect import collect, done_units
 from gtsweep.reproduction.design import NEW_WINDOWS, design_digest, new_units, rebuild_units
+from gtsweep.reproduction.tuned import tuned_digest, tuning_fingerprint
 
 COMMANDS = ("collect", "document", "verify", "status")
 

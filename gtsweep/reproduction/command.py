@@ -10,32 +10,28 @@ each table names the entries tied with its best. Hand-written explanations of di
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import math
 import os
-import re
 import shutil
 import signal
 import sys
 from pathlib import Path
 
-import pandas as pd
-
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.errors import BadInput
 from gtsweep.core.interrupts import SIGNALS, Interrupted, on_signal
-from gtsweep.core.paths import CONF_DIR, DEFAULT_CACHE_DIR, PROJECT_DIR
-from gtsweep.reproduction import rounds as runs
-from gtsweep.reproduction.run_record import RunRecord
-from gtsweep.reproduction.findings import check_findings, survey_variant
+from gtsweep.core.paths import DEFAULT_CACHE_DIR, PROJECT_DIR
 from gtsweep.report.samples import load_views
 from gtsweep.report.scale import annotate, load_scale
-from gtsweep.reproduction.sequential import Sequential
 from gtsweep.report.tables import ALPHA, build_tables, frame, load_summaries
 from gtsweep.report.tuning import tuning_table
-from gtsweep.reproduction.tuned import TUNED, tuned_digest, tuned_line, tuning_fingerprint
+from gtsweep.reproduction import rounds as runs
 from gtsweep.reproduction.document import cell_counts, tally, ties_row
+from gtsweep.reproduction.findings import check_findings, survey_variant
+from gtsweep.reproduction.run_record import RunRecord
+from gtsweep.reproduction.sequential import Sequential
+from gtsweep.reproduction.tuned import TUNED, tuned_digest, tuned_line, tuning_fingerprint
 
 PRESETS, SIZES = runs.PRESETS, runs.SIZES
 CHOICES = sorted([*SIZES, "decide"])

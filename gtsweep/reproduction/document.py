@@ -17,15 +17,15 @@ import yaml
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.evaluation.verdicts import UNDECIDED, images_to_decide
-from gtsweep.reproduction.rounds import PRESETS
-from gtsweep.report.tuning import tuning_table
-from gtsweep.reproduction.tuned import TUNED, tuned_line
 from gtsweep.report.scale import annotate, scale_from_config
 from gtsweep.report.tables import build_tables
+from gtsweep.report.tuning import tuning_table
 from gtsweep.reproduction import looks as looking
 from gtsweep.reproduction import verify
 from gtsweep.reproduction.design import DESIGN_PAGE, NEW_WINDOWS
+from gtsweep.reproduction.rounds import PRESETS
 from gtsweep.reproduction.state import State
+from gtsweep.reproduction.tuned import TUNED, tuned_line
 
 #: The fixed full protocol's cost on 2 cores, from the measured task costs after MSD's port (README, Performance).
 FULL_PROTOCOL_H = 18.8

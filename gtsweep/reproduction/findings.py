@@ -25,9 +25,9 @@ from gtsweep.evaluation import statistics, verdicts
 from gtsweep.evaluation.transforms import TRANSFORMS
 from gtsweep.evaluation.verdicts import ABOVE, AMONG, BEATS, BELOW, WITHIN, Claim
 from gtsweep.orchestration.grid import SURVEY_METHODS
-from gtsweep.report.pools import (EVERY_CELL, ORIENTED, PLAIN_DESCRIPTORS, UNORIENTED, Data, best,
-                                  by_count, cells_where, detection_cells, keeps_all, median_entry, pairings,
-                                  survey_selector, table3)
+from gtsweep.report.pools import (EVERY_CELL, ORIENTED, PLAIN_DESCRIPTORS, UNORIENTED, Data, best, by_count,
+                                  cells_where, detection_cells, keeps_all, median_entry, pairings, survey_selector,
+                                  table3)
 from gtsweep.report.samples import against, compare, rate_within
 
 NOT_MEASURED, NOT_TESTABLE = "not measured", "not testable"

@@ -12,12 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gtsweep.reproduction.rounds import PRESETS, ROUNDS, counts
-from gtsweep.reproduction.findings import Finding, check, judge, survey_variant
 from gtsweep.report.pools import Data
-from gtsweep.reproduction.sequential import Sequential, Status
 from gtsweep.report.tables import frame
 from gtsweep.reproduction import amended
+from gtsweep.reproduction.findings import Finding, check, judge, survey_variant
+from gtsweep.reproduction.rounds import PRESETS, ROUNDS, counts
+from gtsweep.reproduction.sequential import Sequential, Status
 from gtsweep.reproduction.state import State, item_number
 
 PENDING = "pending"

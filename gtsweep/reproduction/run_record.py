@@ -36,7 +36,7 @@ class RunRecord:
 
     @classmethod
     def resume(cls, path: Path, plan: dict, clock: Callable[[], float] = time.time,
-               heartbeat_s: float = 60.0) -> "RunRecord":
+               heartbeat_s: float = 60.0) -> RunRecord:
         """The record at ``path`` when it is of the same ``plan``; a new one when there is none. Another plan's
         record is refused (:class:`BadInput`): resuming it would mix two reproductions."""
         record = cls(path, plan, clock, heartbeat_s)

@@ -19,13 +19,13 @@ from dataclasses import dataclass, field
 
 import pandas as pd
 
+from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.evaluation.statistics import spent_alpha
 from gtsweep.evaluation.verdicts import DECIDED
-from gtsweep.reproduction.rounds import counts, fraction
-from gtsweep.core.config import METHOD_GROUPS
-from gtsweep.reproduction.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
 from gtsweep.report.samples import load_views
 from gtsweep.report.tables import frame, load_summaries
+from gtsweep.reproduction.findings import FINDINGS, Finding, Hypothesis, check, survey_variant
+from gtsweep.reproduction.rounds import counts, fraction
 
 
 @dataclass

@@ -35,7 +35,9 @@ def view_rows(output: Path) -> pd.DataFrame:
         rows = store.rows(summary.stem)
         if len(rows.columns):
             frames.append(rows.assign(**json.loads(summary.read_text()).get("methods", {})))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["detector", "view", "image", "t_detect"])
+    if not frames:
+        return pd.DataFrame(columns=["detector", "view", "image", "t_detect"])
+    return pd.concat(frames, ignore_index=True)
 
 
 def detections(rows: pd.DataFrame) -> pd.DataFrame:

@@ -19,13 +19,7 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput, GtsweepError
-from gtsweep.core.registry import (
-    Method,
-    Registry,
-    lazy_factory,
-    reason_line,
-    spec_declare,
-)
+from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line, spec_declare
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages.learned import ALIKED_VARIANTS
 
@@ -130,7 +124,8 @@ def detect_timed(image: np.ndarray, name: str, mask: np.ndarray | None = None, *
     start = time.perf_counter()
     try:
         # a detector that gives its keypoints as an array (gtsweep's own ones) skips the cv2.KeyPoint objects
-        found = detector.detect_array(image, mask) if hasattr(detector, "detect_array") else detector.detect(image, mask)
+        detect = detector.detect_array if hasattr(detector, "detect_array") else detector.detect
+        found = detect(image, mask)
     except cv2.error as e:
         raise GtsweepError(f"detector '{name}' failed: {reason_line(e)}") from None
     seconds = time.perf_counter() - start

@@ -82,7 +82,7 @@ class LightGlueMatcher:
             return f"LightGlue has weights for {trained} descriptors only, not {descriptor}"
         return None
 
-    def index(self, reference: np.ndarray, norm: str, side: Side | None = None) -> "LightGlueIndex":
+    def index(self, reference: np.ndarray, norm: str, side: Side | None = None) -> LightGlueIndex:
         if side is None:
             raise NotApplicable(self.applicability(norm, against_map=True))
         reason = self.applicability(norm, side.descriptor)

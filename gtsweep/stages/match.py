@@ -81,7 +81,7 @@ class BruteForce:
     def __post_init__(self):
         check_all({"ratio": self.ratio, "mutual": self.mutual}, _BF_RULES, "matcher 'bf_ratio' parameter ")
 
-    def index(self, reference: np.ndarray, norm: str) -> "BruteForceIndex":
+    def index(self, reference: np.ndarray, norm: str) -> BruteForceIndex:
         if norm not in _NORMS:
             raise UnknownMethod("norm", norm, _NORMS)
         return BruteForceIndex(self, np.ascontiguousarray(reference), norm)
@@ -143,7 +143,7 @@ class Flann:
         kind = "binary (Hamming)" if norm == "hamming" else "real-valued (L2)"
         return f"FLANN's {self.algorithm} index needs {needs.upper()} descriptors, these are {kind}"
 
-    def index(self, reference: np.ndarray, norm: str) -> "FlannIndex":
+    def index(self, reference: np.ndarray, norm: str) -> FlannIndex:
         if norm not in _NORMS:
             raise UnknownMethod("norm", norm, _NORMS)
         reason = self.applicability(norm)

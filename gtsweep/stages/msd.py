@@ -6,10 +6,11 @@ Tombari and Daniele De Gregorio; OpenCV is distributed under the Apache License 
 pyramid level and each of the (2 r_b + 1)² - 1 offsets of its search area with scalar code: on a 1288×964 view
 that is 3.4 s, most of the survey protocol's detection time. Here each pair of opposite offsets is one pass over a
 strip of rows (the squared difference of the image and its shifted copy, summed over the patch by a separable
-filter of ones, the k smallest kept by a min/max insertion), so the work is array operations. The numbers are OpenCV's, bit for bit: the patch
-sums are integers (exact in float32 below 2^24: at most (2 r_s + 1)² · 255² · k), the mean of the k smallest is
-the same float32 division, the pyramid is OpenCV's own ``resize(INTER_AREA)``, and the non-maximum suppression and
-the sub-pixel step replay msd.cpp's float and double arithmetic (``cv::solve``'s 2×2 Cramer rule in double);
+filter of ones, the k smallest kept by a min/max insertion), so the work is array operations. The numbers are OpenCV's,
+bit for bit: the patch sums are integers (exact in float32 below 2^24: at most (2 r_s + 1)² · 255² · k), the mean of the
+k smallest is the same float32 division, the pyramid is OpenCV's own ``resize(INTER_AREA)``, and the non-maximum
+suppression and the sub-pixel step replay msd.cpp's float and double arithmetic (``cv::solve``'s 2×2 Cramer rule in
+double);
 ``tests/test_msd.py`` compares keypoints with OpenCV's on views, transforms and masks.
 
 Settings the fast path does not cover (``m_compute_orientation``, a patch sum that could leave float32's
@@ -34,7 +35,7 @@ STRIP_ROWS = 64
 _UNSET = np.float32(2 ** 31 - 1)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _logf(value: float) -> float:
     """The C library's ``logf``, which msd.cpp's ``std::log(float)`` calls (NumPy's float32 log is its own SIMD
     code and differs in the last bit for some inputs)."""

@@ -182,7 +182,8 @@ def estimate_pose(test_xy, ref_xy, model: str = "similarity", iterations: int = 
 
 # --- Estimators as a registry family: every one maps (test_xy, ref_xy, seed) to a PoseEstimate. -------------------
 
-_RULES = {"model": Choice(MODELS), "iterations": Range(1, None, integer=True), "threshold": Range(0, None, low_open=True),
+_RULES = {"model": Choice(MODELS), "iterations": Range(1, None, integer=True),
+          "threshold": Range(0, None, low_open=True),
           "confidence": Range(0, 1, low_open=True, high_open=True), "refine_iters": Range(0, None, integer=True)}
 
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Sequence
 
@@ -53,7 +53,7 @@ BICUBIC_A = -0.75  # torch's cubic convolution coefficient
 _NET_LOCK = threading.Lock()
 
 
-@lru_cache(maxsize=None)
+@cache
 def load_network(path: str = str(MODEL_PATH)) -> cv2.dnn.Net:
     """The exported XFeat backbone as a ``cv2.dnn.Net``, read once per process and path."""
     if not Path(path).is_file():
@@ -282,7 +282,7 @@ def dense_descriptors(net_input: np.ndarray, maps=None) -> np.ndarray:
     return maps.get_or_compute(h.hexdigest(), compute)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _model_identity(path: str = str(MODEL_PATH)) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] + cv2.__version__ + np.__version__
 
@@ -299,7 +299,8 @@ class XFeat(UnorientedFloatFeature):
                  keypoint_size: float = KEYPOINT_SIZE):
         if keypoint_size <= 0:
             raise BadInput(f"keypoint_size must be positive, got {keypoint_size}")
-        self.top_k, self.detection_threshold, self.keypoint_size = top_k, float(detection_threshold), float(keypoint_size)
+        self.top_k = top_k
+        self.detection_threshold, self.keypoint_size = float(detection_threshold), float(keypoint_size)
         self.maps = None  # where compute() keeps dense maps between calls (use_dense_cache)
         load_network()  # fail early if the model is missing; cached for the process
 

@@ -59,8 +59,8 @@ def cell_params(cell, method_config: Mapping, config: Mapping, fingerprint: str,
                 written: Mapping[str, Mapping[str, str]]) -> dict[str, str]:
     """A cell's params: its methods as written (``tuned/sift``), the seed, the data set, the methods' configs.
 
-    ``method_config`` is the cell's configuration (:meth:`gtsweep.orchestration.grid.MethodGrid.cell_config`), ``config``
-    the sweep's composed config, ``written`` :func:`written_options`.
+    ``method_config`` is the cell's configuration (:meth:`gtsweep.orchestration.grid.MethodGrid.cell_config`),
+    ``config`` the sweep's composed config, ``written`` :func:`written_options`.
     """
     params = {group: as_written(written, group, name) for group, name in cell.methods.items() if name is not None}
     if config.get("seed") is not None:

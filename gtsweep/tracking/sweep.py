@@ -27,20 +27,11 @@ from pathlib import Path
 from typing import Mapping
 
 from gtsweep.core import interrupts
-from gtsweep.core.errors import BadInput
 from gtsweep.core.rundirs import CELLS, COMBINED, PARENT_RECORD, REPORT, RUN_RECORD
 from gtsweep.tracking.closing import REASON_TAG, clear_reason, mark_ended, reopen
 from gtsweep.tracking.figures import FIGURE, strength_figure
-from gtsweep.tracking.metricnames import SWEEP, mlflow_name, summary_name
-from gtsweep.tracking.params import (
-    METHOD_TAG,
-    batches,
-    cell_params,
-    config_params,
-    method_tags,
-    parsed_config,
-    written_options,
-)
+from gtsweep.tracking.metricnames import SWEEP, mlflow_name
+from gtsweep.tracking.params import batches, cell_params, config_params, method_tags, parsed_config, written_options
 from gtsweep.tracking.store import experiment_name, git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import (PAIRING_TAG, cell_names, child_name, cluster_tags, model_development, ms,
                                    pairing_label, quiet_mlflow, source_tags, unique_name)
@@ -107,7 +98,8 @@ class SweepTracker:
             self.run_name = self.client.get_run(self.parent_id).info.run_name
             self.logged = self._logged_children(self.experiment_id)
         else:
-            tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]), "gtsweep.git_commit": git_commit(),
+            tags = {"gtsweep.command": " ".join(["python -m gtsweep", *sys.argv[1:]]),
+                    "gtsweep.git_commit": git_commit(),
                     "gtsweep.dataset_fingerprint": dataset_fingerprint, "gtsweep.output_dir": str(self.output_dir),
                     "gtsweep.experiment": grid.experiment["name"], **self.source,
                     **{f"gtsweep.version.{k}": str(v) for k, v in versions.items()}}

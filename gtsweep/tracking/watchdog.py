@@ -121,8 +121,8 @@ def ray_package_dir() -> str | None:
 
 def mark_failed(output_dir: Path, cause: str) -> str:
     """Mark the sweep's parent run FAILED; "" when done or when there is none, else a note why not."""
-    from gtsweep.tracking.closing import mark_ended
     from gtsweep.core.rundirs import PARENT_RECORD
+    from gtsweep.tracking.closing import mark_ended
 
     record = output_dir / PARENT_RECORD
     if not record.exists():  # MLflow off, or the sweep died before its parent run existed

@@ -1,7 +1,6 @@
 """gtsweep's Hydra sweeper, found by Hydra's plugin discovery (``hydra_plugins``) and selected by the primary
 config (``override hydra/sweeper: gtsweep``). The work is in :mod:`gtsweep.cli.sweeper`."""
 from dataclasses import dataclass
-from typing import Dict, Optional
 
 from hydra.core.config_store import ConfigStore
 
@@ -15,8 +14,8 @@ class GtsweepSweeper(CheckingSweeper):
 @dataclass
 class GtsweepSweeperConf:
     _target_: str = "hydra_plugins.gtsweep_sweeper.GtsweepSweeper"
-    max_batch_size: Optional[int] = None
-    params: Optional[Dict[str, str]] = None
+    max_batch_size: int | None = None
+    params: dict[str, str] | None = None
 
 
 ConfigStore.instance().store(group="hydra/sweeper", name="gtsweep", node=GtsweepSweeperConf, provider="gtsweep")

@@ -19,16 +19,11 @@ from pathlib import Path
 from gtsweep.core.config import plain
 from gtsweep.core.interrupts import Interrupted
 from gtsweep.core.paths import DEFAULT_TUNED_ROOT
-from gtsweep.experiments.optimize.tuned_files import (
-    defaults_trial,
-    describe_best,
-    format_summary,
-    tuned_header,
-    write_tuned,
-)
 from gtsweep.experiments.optimize.optuna_study import complete_trials, open_study, optimise
 from gtsweep.experiments.optimize.study_settings import job_transforms, read_settings
 from gtsweep.experiments.optimize.targets import build_targets, study_name
+from gtsweep.experiments.optimize.tuned_files import (defaults_trial, describe_best, format_summary, tuned_header,
+                                                      write_tuned)
 from gtsweep.orchestration.cache import cache_directory
 from gtsweep.orchestration.executor import backend, check_address, make_executor
 from gtsweep.orchestration.shards import load_shards

@@ -14,9 +14,9 @@ import hashlib
 import tempfile
 import warnings
 from pathlib import Path
+from typing import Mapping
 
 from filelock import FileLock, Timeout
-from typing import Mapping
 
 from gtsweep.core.errors import BadInput, GtsweepError
 from gtsweep.core.seeds import stable_seed
@@ -25,7 +25,6 @@ from gtsweep.experiments.optimize.search_space import defaults_in_space
 from gtsweep.experiments.optimize.stopping import settled
 from gtsweep.experiments.optimize.study_settings import job_transforms
 from gtsweep.experiments.optimize.targets import Target
-
 
 #: The studies this process optimises (their locks are held for the process's life).
 _owned: dict[tuple[str, str], FileLock] = {}

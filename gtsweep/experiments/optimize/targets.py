@@ -34,9 +34,9 @@ class Target:
 
 def build_targets(cfg: Mapping, settings: Mapping) -> list[Target]:
     """One target per selected detector, or per pairing for the pose objective; search spaces checked."""
+    from gtsweep.stages.applicability import applicability
     from gtsweep.stages.describe import descriptor_params
     from gtsweep.stages.detect import DETECTORS
-    from gtsweep.stages.applicability import applicability
 
     detectors = resolve_group(cfg, "detector", search_space=True)
     if not detectors:

@@ -1,6 +1,7 @@
-"""The pair experiments (detection, matching, pose) on the sweep skeleton (:data:`PAIRS`): their data (a data set of images and pairs), and
-their evaluation as a graph of detection and pairing tasks (:mod:`gtsweep.experiments.pairs.runner`); a cell keeps
-the rows of the images or pairs it already evaluated on a smaller data set (:mod:`gtsweep.orchestration.view_reuse`).
+"""The pair experiments (detection, matching, pose) on the sweep skeleton (:data:`PAIRS`): their data (a data set of
+images and pairs), and their evaluation as a graph of detection and pairing tasks
+(:mod:`gtsweep.experiments.pairs.runner`); a cell keeps the rows of the images or pairs it already evaluated on a
+smaller data set (:mod:`gtsweep.orchestration.view_reuse`).
 """
 from __future__ import annotations
 

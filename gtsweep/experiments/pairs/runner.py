@@ -21,8 +21,8 @@ from gtsweep.experiments.pairs import tasks
 from gtsweep.experiments.pairs.grid import Cell, Grid
 from gtsweep.orchestration.executor import make_executor
 from gtsweep.orchestration.settings import default
-from gtsweep.orchestration.tasks import RunStats
 from gtsweep.orchestration.shards import shard_kind
+from gtsweep.orchestration.tasks import RunStats
 from gtsweep.stages import device as devices
 from gtsweep.stages.describe import DESCRIPTORS
 

@@ -18,7 +18,7 @@ def headline_tables(outcome: SweepOutcome) -> dict[str, pd.DataFrame]:
     columns = ["selector"] if outcome.grid.experiment["name"] == "detection" else \
         ["descriptor", *swept_variants(outcome.summaries)]
     tables = {}
-    for transform, part in table.groupby("transform", sort=False):
+    for _transform, part in table.groupby("transform", sort=False):
         values = part[metric] if metric in part else pd.Series(float("nan"), index=part.index)
         shown = values.map(lambda v: "NA" if pd.isna(v) else f"{v:.2f}").where(part["status"] == "ok", "NA")
         pivot = part.assign(value=shown).pivot_table(index="detector", columns=columns, values="value",
