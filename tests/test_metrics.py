@@ -5,18 +5,9 @@ import numpy as np
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.evaluation.metrics import (
-    _max_centre_distance,
-    circle_iou,
-    correct_matches,
-    correspondences,
-    map_keypoints,
-    matching_precision,
-    pose_error,
-    pose_success,
-    repeatability,
-    too_few_keypoints,
-)
+from gtsweep.evaluation.metrics import (_max_centre_distance, circle_iou, correct_matches, correspondences,
+                                        map_keypoints, matching_precision, pose_error, pose_success, repeatability,
+                                        too_few_keypoints)
 
 
 def grid(step=10, n=10, size=4.0):

@@ -5,14 +5,7 @@ from scipy.spatial.distance import pdist
 
 from gtsweep.core.errors import BadInput, UnknownMethod
 from gtsweep.stages.keypoints import COLUMNS, RESPONSE, X, Y
-from gtsweep.stages.select import (
-    SELECTORS,
-    select,
-    select_anms,
-    select_bucketing,
-    select_nms,
-    select_none,
-)
+from gtsweep.stages.select import SELECTORS, select, select_anms, select_bucketing, select_nms, select_none
 
 SHAPE = (480, 640)  # (height, width)
 

@@ -5,23 +5,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gtsweep.evaluation.statistics import (
-    FAILS,
-    HOLDS,
-    INCONCLUSIVE,
-    bootstrap_interval,
-    clustered_difference,
-    clustered_interval,
-    clustered_mean,
-    correlation_difference,
-    correlation_interval,
-    holm,
-    mcnemar_exact,
-    paired_difference,
-    spent_alpha,
-    verdict,
-    wilson_interval,
-)
+from gtsweep.evaluation.statistics import (FAILS, HOLDS, INCONCLUSIVE, bootstrap_interval, clustered_difference,
+                                           clustered_interval, clustered_mean, correlation_difference,
+                                           correlation_interval, holm, mcnemar_exact, paired_difference, spent_alpha,
+                                           verdict, wilson_interval)
 
 
 def test_wilson_interval_by_hand():

@@ -4,16 +4,8 @@ import pytest
 from skimage import data
 
 from gtsweep.core.errors import BadInput, UnknownMethod
-from gtsweep.evaluation.transforms import (
-    STRENGTHS,
-    TRANSFORMS,
-    add_noise,
-    adjust_gamma,
-    gamma_table,
-    rotate,
-    synthesize,
-    translate,
-)
+from gtsweep.evaluation.transforms import (STRENGTHS, TRANSFORMS, add_noise, adjust_gamma, gamma_table, rotate,
+                                           synthesize, translate)
 
 
 @pytest.fixture(scope="module")

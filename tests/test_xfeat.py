@@ -13,13 +13,7 @@ import numpy as np
 import pytest
 
 from gtsweep.core.errors import BadInput
-from gtsweep.stages.xfeat import (
-    DESCRIPTOR_SIZE,
-    KEYPOINT_SIZE,
-    XFeat_create,
-    describe_arrays,
-    detect_arrays,
-)
+from gtsweep.stages.xfeat import DESCRIPTOR_SIZE, KEYPOINT_SIZE, XFeat_create, describe_arrays, detect_arrays
 
 FIXTURE = Path(__file__).parent / "data" / "xfeat_expected.npz"
 

@@ -15,12 +15,7 @@ from gtsweep.core.errors import BadInput
 from gtsweep.datasets import options as opts
 from gtsweep.datasets.core import Dataset
 from gtsweep.datasets.pairing import POSED_DEFAULTS, posed_dataset
-from gtsweep.datasets.posefiles import (
-    Problems,
-    numbered_lines,
-    read_hdground_poses,
-    read_image_list,
-)
+from gtsweep.datasets.posefiles import Problems, numbered_lines, read_hdground_poses, read_image_list
 
 DEFAULTS = dict(POSED_DEFAULTS)
 

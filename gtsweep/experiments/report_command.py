@@ -32,11 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out or ("report" if args.mlflow else Path(args.source) / "report"))
     try:
         if args.mlflow:
-            from gtsweep.tracking.readback import (
-                config_from_mlflow,
-                summaries_from_mlflow,
-                views_from_mlflow,
-            )
+            from gtsweep.tracking.readback import config_from_mlflow, summaries_from_mlflow, views_from_mlflow
 
             summaries = summaries_from_mlflow(args.source, args.tracking_uri)
             views = lambda: views_from_mlflow(args.source, args.tracking_uri)  # noqa: E731

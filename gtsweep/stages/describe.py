@@ -17,13 +17,7 @@ import cv2
 import numpy as np
 
 from gtsweep.core.errors import BadInput, GtsweepError
-from gtsweep.core.registry import (
-    Method,
-    Registry,
-    lazy_factory,
-    reason_line,
-    spec_declare,
-)
+from gtsweep.core.registry import Method, Registry, lazy_factory, reason_line, spec_declare
 from gtsweep.stages import keypoints as kp
 from gtsweep.stages import scales
 from gtsweep.stages.latch import LATCH_create

@@ -18,14 +18,7 @@ import time
 from typing import Mapping
 
 from gtsweep.tracking.metricnames import mlflow_name
-from gtsweep.tracking.params import (
-    as_written,
-    batches,
-    config_params,
-    dataset_params,
-    parsed_config,
-    written_options,
-)
+from gtsweep.tracking.params import as_written, batches, config_params, dataset_params, parsed_config, written_options
 from gtsweep.tracking.store import flatten, git_commit, open_store, tracking_uri
 from gtsweep.tracking.tags import child_name, model_development, source_tags, unique_name
 

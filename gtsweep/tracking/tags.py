@@ -41,12 +41,7 @@ def model_development(client, experiment_id: str) -> None:
 
 def source_tags() -> dict[str, str]:
     """MLflow's standard run tags (the fluent API sets them; ``MlflowClient.create_run`` does not)."""
-    from mlflow.utils.mlflow_tags import (
-        MLFLOW_GIT_COMMIT,
-        MLFLOW_SOURCE_NAME,
-        MLFLOW_SOURCE_TYPE,
-        MLFLOW_USER,
-    )
+    from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_SOURCE_NAME, MLFLOW_SOURCE_TYPE, MLFLOW_USER
 
     from gtsweep.tracking.store import git_commit
 

@@ -24,14 +24,8 @@ from gtsweep.datasets.mapping import covered_area, load_localization
 from gtsweep.experiments.localization import tasks as loctasks
 from gtsweep.experiments.localization.settings import SETTINGS
 from gtsweep.orchestration.executor import make_executor
-from gtsweep.orchestration.grid import (
-    MethodCell,
-    MethodGrid,
-    pairings_of,
-    resolve_group,
-    selectors_of,
-    with_survey_method,
-)
+from gtsweep.orchestration.grid import (MethodCell, MethodGrid, pairings_of, resolve_group, selectors_of,
+                                        with_survey_method)
 from gtsweep.orchestration.skeleton import CellWork, SweepOutcome, run_sweep
 from gtsweep.orchestration.tasks import RunStats
 from gtsweep.stages.applicability import applicability

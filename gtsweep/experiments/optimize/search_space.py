@@ -50,11 +50,7 @@ def _range(where: str, kind: str, spec: Mapping):
 
 def _distribution(where: str, spec, default):
     """The Optuna distribution of one parameter; its type must fit the default value."""
-    from optuna.distributions import (
-        CategoricalDistribution,
-        FloatDistribution,
-        IntDistribution,
-    )
+    from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 
     if not isinstance(spec, Mapping):
         raise BadInput(f"{where} must be a mapping like {{type: float, low: 0.01, high: 0.1}}, got {spec!r}")

@@ -10,14 +10,8 @@ from typing import Mapping
 
 from gtsweep.core.config import METHOD_GROUPS, plain
 from gtsweep.core.errors import BadInput
-from gtsweep.orchestration.grid import (
-    MethodCell,
-    MethodGrid,
-    pairings_of,
-    resolve_group,
-    selectors_of,
-    with_survey_method,
-)
+from gtsweep.orchestration.grid import (MethodCell, MethodGrid, pairings_of, resolve_group, selectors_of,
+                                        with_survey_method)
 from gtsweep.stages import device as devices
 from gtsweep.stages.applicability import applicability
 from gtsweep.stages.describe import DESCRIPTORS

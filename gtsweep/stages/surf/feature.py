@@ -12,14 +12,8 @@ import numpy as np
 
 from gtsweep.core.errors import BadInput
 from gtsweep.stages.keypoints import ANGLE, COLUMNS, SIZE, X, Y, to_array, to_keypoints
-from gtsweep.stages.surf.describe import (
-    UPRIGHT_ANGLE,
-    descriptors_from_patches,
-    keypoint_scale,
-    orientations,
-    patches,
-    window_sizes,
-)
+from gtsweep.stages.surf.describe import (UPRIGHT_ANGLE, descriptors_from_patches, keypoint_scale, orientations,
+                                          patches, window_sizes)
 from gtsweep.stages.surf.hessian import detect_keypoints, integral_image
 
 F32 = np.float32
