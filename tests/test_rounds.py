@@ -2,6 +2,7 @@
 the overrides that cut a preset's grid to them, and the rounds with the preset runs replaced by a fake that writes
 cell files (no gtsweep process)."""
 import json
+from pathlib import Path
 
 import pandas as pd
 
@@ -97,3 +98,29 @@ def test_the_cells_of_every_finding_of_a_preset_together(tmp_path):
     assert [(c["detector"], c["descriptor"]) for c in collapse] == [("censure", "brief")]
     both = pd.DataFrame(needed_cells([FINDINGS[6], FINDINGS[7]], latest)["table5_absolute"])
     assert set(both["detector"]) == {"censure", "sift"} and len(both) == 4
+
+
+def test_a_preset_runs_in_its_work_folder_with_absolute_paths(tmp_path, monkeypatch):
+    """A relative work folder (``collect --work .gtsweep_cache/...``): the sweep runs in that folder, so its output,
+    cache and store are given as absolute paths (relative ones would land under the folder a second time)."""
+    import subprocess
+
+    seen = {}
+
+    class Stopped(Exception):
+        pass
+
+    def popen(args, cwd, **kwargs):
+        seen.update(args=args, cwd=cwd)
+        raise Stopped
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    try:
+        preset_runs.run_preset("table3_detectors", [], Path("work/scratch"), "sqlite:///x.db", Path("work/cache"))
+    except Stopped:
+        pass
+    given = dict(a.split("=", 1) for a in seen["args"] if a.startswith(("hydra.run.dir=", "cache.dir=")))
+    assert seen["cwd"] == tmp_path / "work" / "scratch"
+    assert given == {"hydra.run.dir": str(tmp_path / "work" / "scratch" / "table3_detectors"),
+                     "cache.dir": str(tmp_path / "work" / "cache")}

@@ -131,7 +131,8 @@ def commit_state(folder: Path, paths: list[Path], message: str, log=print, tries
 def collect(units: list[Unit], folder: Path, work: Path, plan: dict, commit: bool = False,
             until: float | None = None, log=print, extra: list[str] = ()) -> int:
     """Run every unit the state in ``folder`` does not hold yet, in order, until ``until`` (epoch seconds: no
-    unit starts after it); returns how many ran."""
+    unit starts after it); returns how many ran. ``work`` may be relative (to this process's directory)."""
+    work = Path(work).resolve()  # the sweeps run in their own directories: a relative path would move there
     states.write_plan(folder, plan)
     if commit:
         commit_state(folder, [Path(folder) / "plan.json"], "reproduction state: the plan", log)

@@ -72,7 +72,9 @@ def round_overrides(counts_per_texture) -> list[str]:
 
 
 def run_preset(preset: str, overrides: list[str], work: Path, uri: str, cache: Path | None = None) -> dict:
-    """Run one preset in its own process (output ``work/<preset>``); returns its measurements."""
+    """Run one preset in its own process (output ``work/<preset>``); returns its measurements. The process runs in
+    ``work``, so every path it is given is absolute."""
+    work, cache = Path(work).resolve(), (Path(cache).resolve() if cache else None)
     out = work / preset
     work.mkdir(parents=True, exist_ok=True)
     args = [sys.executable, "-m", "gtsweep", f"sweeps={preset}", *overrides, f"hydra.run.dir={out}",
