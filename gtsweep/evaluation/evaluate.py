@@ -25,8 +25,8 @@ from gtsweep.evaluation.views import views
 from gtsweep.stages.describe import DESCRIPTORS
 from gtsweep.stages.detect import detect_timed
 from gtsweep.stages.lightglue import Side
-from gtsweep.stages.match import MATCHERS, match_sides
-from gtsweep.stages.pose import ESTIMATORS
+from gtsweep.stages.match import MATCHERS, SURVEY_MATCHER, match_sides
+from gtsweep.stages.pose import ESTIMATORS, SURVEY_ESTIMATOR
 from gtsweep.stages.select import select
 
 
@@ -152,9 +152,11 @@ def pose_metrics(view: ViewPair, described: Described, matches, estimator, cfg: 
 Combination = tuple[str, "str | None"]
 
 
-def build_methods(methods: dict) -> tuple[dict, dict]:
+def build_methods(methods: dict | None) -> tuple[dict, dict]:
     """The built matchers and estimators of ``methods`` (``{"matchers": {name: params}, "estimators": {name:
-    params}}``), ``{name: built}``; the estimators are ``{None: None}`` when it names none (no pose estimated)."""
+    params}}``; None: the survey's, with their defaults), ``{name: built}``; the estimators are ``{None: None}``
+    when it names none (no pose estimated)."""
+    methods = methods or {"matchers": {SURVEY_MATCHER: {}}, "estimators": {SURVEY_ESTIMATOR: {}}}
     matchers = {name: MATCHERS.get(name).build(params) for name, params in methods["matchers"].items()}
     estimators = {name: ESTIMATORS.get(name).build(params)
                   for name, params in (methods.get("estimators") or {}).items()}
