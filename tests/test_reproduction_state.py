@@ -156,16 +156,24 @@ def test_collect_stops_in_one_line_on_sigterm(monkeypatch, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_document_is_written_from_the_committed_state(tmp_path):
-    """``document`` on the committed state: the interim REPRODUCTION.md with the tuned configs' table, every
-    finding's row, and its tables and plots beside it."""
+    """``document`` on the committed state's first chunk (a fixed size, however far the run has gone): the interim
+    REPRODUCTION.md with the tuned configs' table, every finding's row, and its tables and plots beside it."""
+    import shutil
+
     from gtsweep.reproduction import document
     from gtsweep.reproduction.tuned import tuning_fingerprint
 
-    held = states.load(states.STATE_DIR)
-    path = document.write(held, tmp_path, 0.05, set(), False, tuning_fingerprint())
+    first = tmp_path / "state"
+    (first / "chunks").mkdir(parents=True)
+    shutil.copy(states.STATE_DIR / "plan.json", first)
+    for part in sorted((states.STATE_DIR / "chunks").glob("0001-*")):
+        shutil.copy(part, first / "chunks")
+    held = states.load(first)
+    docs = tmp_path / "docs"
+    path = document.write(held, docs, 0.05, set(), False, tuning_fingerprint())
     text = path.read_text()
-    assert path == tmp_path / "REPRODUCTION.md" and "## The survey's findings" in text
+    assert path == docs / "REPRODUCTION.md" and "## The survey's findings" in text
     assert "**The run is not finished**" in text and f"(digest {held.plan['design']})" in text
     findings = [line for line in text.splitlines() if line.startswith("| ") and "| not rebuilt yet |" in line]
     assert 0 < len(findings) < 12  # Table 3's rebuilt findings are judged, the others wait for their rows
-    assert any((tmp_path / "reproduction").iterdir())
+    assert any((docs / "reproduction").iterdir())
