@@ -9,7 +9,7 @@ import pytest
 
 import surf_digests
 from gtsweep.orchestration.cache import library_versions
-from gtsweep.stages.surf import IMPLEMENTATION_VERSION, opencv_surf_available, windows
+from gtsweep.stages.surf import IMPLEMENTATION_VERSION, NumpySURF, opencv_surf_available, windows
 
 PINNED_VERSION = 1
 CROPS = {
@@ -87,3 +87,17 @@ def test_both_samplers_agree_on_windows_that_leave_the_image():
         starts = windows.window_starts(x, y, angle, win)
         expected = windows.sample_numpy(gray, gray.astype(np.float32).ravel(), *starts, win)
         np.testing.assert_array_equal(windows.sample_compiled(gray, *starts, win), expected)
+
+
+def test_a_read_only_image_is_described_as_a_writable_one(sampler):
+    # Ray's object store hands images to its workers read-only; the compiled loop must take them too.
+    with np.load(surf_digests.REFERENCE) as data:
+        image = data["gravel_image"]
+    frozen = image.copy()
+    frozen.flags.writeable = False
+    surf = NumpySURF()
+    keypoints = surf.detect(image, None)
+    assert len(keypoints) > 10
+    _, expected = surf.compute(image, keypoints)
+    _, found = surf.compute(frozen, keypoints)
+    np.testing.assert_array_equal(found, expected)

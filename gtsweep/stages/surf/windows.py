@@ -144,8 +144,14 @@ def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
             row_y += cos_dir[k]
 
 
-#: The compiled loop's one signature: image, row starts x and y, column steps cos and sin, output windows.
-SIGNATURE = "void(uint8[:, ::1], float32[::1], float32[::1], float32[::1], float32[::1], uint8[:, :, ::1])"
+def signatures(numba) -> list:
+    """The compiled loop's signatures (image, row starts x and y, column steps cos and sin, output windows): for a
+    writable image and for a read-only one (Ray's object store hands images out read-only, and Numba dispatches on
+    that flag)."""
+    t = numba.types
+    steps, out = t.float32[::1], t.uint8[:, :, ::1]
+    return [t.void(image, steps, steps, steps, steps, out)
+            for image in (t.uint8[:, ::1], t.Array(t.uint8, 2, "C", readonly=True))]
 
 
 @functools.lru_cache(maxsize=1)
@@ -159,7 +165,7 @@ def compiled_loop():
     except ImportError:
         return None
     try:
-        return numba.njit(SIGNATURE, cache=True, nogil=True, fastmath=False, error_model="numpy")(_sample_loop)
+        return numba.njit(signatures(numba), cache=True, nogil=True, fastmath=False, error_model="numpy")(_sample_loop)
     except Exception as e:  # noqa: BLE001 - any Numba/LLVM failure: the NumPy path gives the same numbers
         log.warning("SURF: Numba could not compile the window sampler (%s); using the NumPy path",
                     str(e).splitlines()[0] if str(e) else type(e).__name__)
