@@ -114,7 +114,10 @@ def compiled_kernel(patch_radius: int, search_radius: int, knn: int):
 
 
 def saliency_compiled(image: np.ndarray, patch_radius: int, search_radius: int, knn: int) -> np.ndarray | None:
-    """:func:`gtsweep.stages.msd.saliency` by the compiled loop, or None where there is none."""
+    """:func:`gtsweep.stages.msd.saliency` of a 2-D uint8 ``image`` by the compiled loop, or None where there is
+    none (or for another image type)."""
+    if image.ndim != 2 or image.dtype != np.uint8 or knn < 1:
+        return None
     loop = compiled_kernel(int(patch_radius), int(search_radius), int(knn))
     if loop is None:
         return None
