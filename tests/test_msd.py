@@ -59,7 +59,7 @@ def test_saliency_hand_worked(kernel):
     # k = 2 at the pixel: (100 + 100) / (1 * 2)
     assert saliency(image, 0, 1, 2)[3, 3] == 100.0
     # no centre r_s + r_b inside the border: all 0
-    assert saliency(np.full((7, 40), 9, np.uint8), 1, 2, 4).tolist() == np.zeros((7, 40)).tolist()
+    assert saliency(np.full((2, 40), 9, np.uint8), 0, 1, 1).tolist() == np.zeros((2, 40)).tolist()
 
 
 @pytest.mark.parametrize("r_s, r_b, k", [(3, 5, 4), (1, 2, 1), (2, 4, 3)])
@@ -156,10 +156,11 @@ def test_the_registry_detects_with_it():
     np.testing.assert_array_equal(detect(image, "msd", m_th_saliency=100.0), expected)
 
 
-@pytest.mark.parametrize("r_s, r_b, k", [(3, 5, 4), (1, 1, 10), (2, 0, 3), (0, 2, 1)])
+# settings the other tests compile too (each setting is a compiled kernel, ~3 s the first time)
+@pytest.mark.parametrize("r_s, r_b, k", [(3, 5, 4), (1, 1, 10), (3, 0, 4), (0, 1, 2)])
 def test_compiled_saliency_is_the_numpy_saliency_at_survey_size(gravel_1288x964, r_s, r_b, k):
-    # the whole 1288x964 level, every setting's code path: defaults, k above the 8 offsets (INT_MAX), no offsets,
-    # one-pixel patches
+    # the whole 1288x964 level, every setting's code path: defaults (k = 4: the sorting network), k above the 8
+    # offsets (INT_MAX), no offsets, one-pixel patches and another k (insertions)
     if compiled_kernel(r_s, r_b, k) is None:
         pytest.skip("Numba is not installed (pip install gtsweep[fast])")
     view = gravel_1288x964 if (r_s, r_b) == (3, 5) else gravel_1288x964[:300, :420]
