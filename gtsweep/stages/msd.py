@@ -78,7 +78,8 @@ def _insert(smallest: np.ndarray, value: np.ndarray, spare: tuple) -> None:
 
 def saliency(image: np.ndarray, patch_radius: int = 3, search_radius: int = 5, knn: int = 4) -> np.ndarray:
     """:func:`saliency_numpy`'s map, by the compiled loop of :mod:`gtsweep.stages.msd_compiled` where Numba is
-    installed (the same bytes, ~3x faster), else by :func:`saliency_numpy`."""
+    installed (the same bytes, ~5x faster: 0.19-0.23 against 1.06 CPU-s for a 1288x964 view's levels), else by
+    :func:`saliency_numpy`."""
     compiled = saliency_compiled(image, patch_radius, search_radius, knn)
     return saliency_numpy(image, patch_radius, search_radius, knn) if compiled is None else compiled
 
