@@ -9,8 +9,8 @@ the same integer arithmetic row by row, with every row's working set in the core
 - that row is offset d's sum at the centres of row y and offset -d's at the centres of row y + d_y, shifted by d_x
   (the sum for -d at p + d is the sum for d at p); both go into the k smallest of their row (a ring of r_b + 1
   rows of ``int32``), four offsets of one d_y at a time: with k = 4 (msd.cpp's default, the survey's setting) the
-  four are sorted and merged with the row's four smallest by a min/max network (18 exchanges and 4 stores instead
-  of four insertions' 28 and 16), else each is inserted by min/max exchanges;
+  four are sorted and merged with the row's four smallest by a min/max network (22 min/max operations and 4 stores
+  instead of four insertions' 28 and 16), else each is inserted by min/max exchanges;
 - a row whose offsets are all in is done: the mean of its k smallest in msd.cpp's float32 order.
 
 Sums are integers (exact in ``int32``), ``INT_MAX`` stands for msd.cpp's unset sums as in the NumPy path (and fills
@@ -90,7 +90,7 @@ def _patch_sums(pixels, column_sums, out, y, dy, dx, r, border, width):
 @_inline
 def _merge_group(best, patch_sums, first, width, k):
     """``best`` (k, width): the k smallest, ascending, of itself and the group's ``patch_sums[j, first[j]:]``."""
-    if k == GROUP:  # sort the four (5 exchanges), keep the four smallest of two sorted fours (bitonic: 4 + 4)
+    if k == GROUP:  # sort the four (5 exchanges); the four smallest of two sorted fours: 4 minima, 4 exchanges
         v0, v1 = patch_sums[0, first[0]:first[0] + width], patch_sums[1, first[1]:first[1] + width]
         v2, v3 = patch_sums[2, first[2]:first[2] + width], patch_sums[3, first[3]:first[3] + width]
         b0, b1, b2, b3 = best[0], best[1], best[2], best[3]
