@@ -88,7 +88,8 @@ DETECTORS: Registry[DetectorSpec] = Registry("detector", [
     _detector("mser", "MSER", cv2.MSER_create,
               {"delta": 5, "min_area": 60, "max_area": 14400, "max_variation": 0.25},
               orientation=False, response=False),
-    # MSD: OpenCV's keypoints, computed by gtsweep.stages.msd's vectorised msd.cpp (3.5x faster, bit-identical).
+    # MSD: OpenCV's keypoints, computed by gtsweep.stages.msd's port of msd.cpp (bit-identical; 3.5x faster, ~13x
+    # with Numba's compiled saliency).
     _detector("msd", "MSD", lazy_factory("gtsweep.stages.msd", "MSD_create"),
               {"m_patch_radius": 3, "m_search_area_radius": 5, "m_nms_radius": 5, "m_nms_scale_radius": 0,
                "m_th_saliency": 250.0, "m_kNN": 4, "m_scale_factor": 1.25, "m_n_scales": -1,

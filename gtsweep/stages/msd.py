@@ -4,14 +4,17 @@ Self-Dissimilarities", ACCV 2014), as OpenCV's ``cv2.xfeatures2d.MSDDetector`` c
 OpenCV's ``opencv_contrib/modules/xfeatures2d/src/msd.cpp`` (a port of github.com/fedassa/msdDetector by Federico
 Tombari and Daniele De Gregorio; OpenCV is distributed under the Apache License 2.0) visits each pixel of each
 pyramid level and each of the (2 r_b + 1)² - 1 offsets of its search area with scalar code: on a 1288×964 view
-that is 3.4 s, most of the survey protocol's detection time. Here each pair of opposite offsets is one pass over a
-strip of rows (the squared difference of the image and its shifted copy, summed over the patch by a separable
-filter of ones, the k smallest kept by a min/max insertion), so the work is array operations. The numbers are OpenCV's,
-bit for bit: the patch sums are integers (exact in float32 below 2^24: at most (2 r_s + 1)² · 255² · k), the mean of the
-k smallest is the same float32 division, the pyramid is OpenCV's own ``resize(INTER_AREA)``, and the non-maximum
-suppression and the sub-pixel step replay msd.cpp's float and double arithmetic (``cv::solve``'s 2×2 Cramer rule in
-double);
-``tests/test_msd.py`` compares keypoints with OpenCV's on views, transforms and masks.
+that is 3.4 s, most of the survey protocol's detection time. Here the saliency has two implementations with the
+same bytes: :func:`saliency_numpy`, where each pair of opposite offsets is one pass over a strip of rows (the squared
+difference of the image and its shifted copy, summed over the patch by a separable filter of ones, the k smallest
+kept by a min/max insertion), ~20 passes through memory per pair of offsets, ~0.9 CPU-s per view
+(``docs/performance.md`` lists what else was tried); and, where Numba is installed (``pip install gtsweep[fast]``),
+the same integer arithmetic in one compiled loop over rows (:mod:`gtsweep.stages.msd_compiled`), ~0.3 CPU-s.
+The numbers are OpenCV's, bit for bit: the patch sums are integers (exact in float32 below 2^24: at most
+(2 r_s + 1)² · 255² · k), the mean of the k smallest is the same float32 division, the pyramid is OpenCV's own
+``resize(INTER_AREA)``, and the non-maximum suppression and the sub-pixel step replay msd.cpp's float and double
+arithmetic (``cv::solve``'s 2×2 Cramer rule in double); ``tests/test_msd.py`` compares keypoints with OpenCV's on
+views, transforms and masks, with either saliency.
 
 Settings the fast path does not cover (``m_compute_orientation``, a patch sum that could leave float32's
 integers, ``m_nms_scale_radius`` > 0, where msd.cpp indexes level k with level r's width, out of bounds, and its
@@ -28,6 +31,7 @@ import cv2
 import numpy as np
 
 from gtsweep.stages import keypoints as kp
+from gtsweep.stages.msd_compiled import saliency_compiled
 
 #: Rows of centres per strip: a strip's few working arrays stay in the core's cache.
 STRIP_ROWS = 64
@@ -73,6 +77,14 @@ def _insert(smallest: np.ndarray, value: np.ndarray, spare: tuple) -> None:
 
 
 def saliency(image: np.ndarray, patch_radius: int = 3, search_radius: int = 5, knn: int = 4) -> np.ndarray:
+    """:func:`saliency_numpy`'s map, by the compiled loop of :mod:`gtsweep.stages.msd_compiled` where Numba is
+    installed (the same bytes, ~5x faster: 0.19-0.23 against 1.06 CPU-s for a 1288x964 view's levels), else by
+    :func:`saliency_numpy`."""
+    compiled = saliency_compiled(image, patch_radius, search_radius, knn)
+    return saliency_numpy(image, patch_radius, search_radius, knn) if compiled is None else compiled
+
+
+def saliency_numpy(image: np.ndarray, patch_radius: int = 3, search_radius: int = 5, knn: int = 4) -> np.ndarray:
     """The contextual self-dissimilarity of every pixel of a uint8 ``image``: the mean of the ``knn`` smallest
     sums of squared differences between the (2 r_s + 1)² patch at the pixel and the patches at the other pixels of
     its (2 r_b + 1)² search area, over the patch's pixel count (msd.cpp ``contextualSelfDissimilarity``); 0 within
