@@ -185,3 +185,11 @@ def test_a_survey_view_gives_opencvs_keypoints(monkeypatch):
         with monkeypatch.context() as numpy_only:
             numpy_only.setattr(msd, "saliency_compiled", lambda *args: None)
             np.testing.assert_array_equal(MSD_create(**params).detect_array(view), expected)
+
+
+def test_a_read_only_image_gives_the_same_keypoints(kernel):
+    # Ray's object store hands images to its workers read-only; the compiled loop must take them too.
+    image = _texture()
+    frozen = image.copy()
+    frozen.flags.writeable = False
+    np.testing.assert_array_equal(detect(frozen, "msd"), detect(image, "msd"))

@@ -29,6 +29,8 @@ import os
 
 import numpy as np
 
+from gtsweep.stages.numba_types import signatures
+
 try:  # Numba is optional (gtsweep[fast]): without it the helpers stay Python and compiled_kernel gives None
     from numba import njit as _njit
 
@@ -165,7 +167,9 @@ def compiled_kernel(patch_radius: int, search_radius: int, knn: int):
     if os.environ.get(KERNEL_ENV, "").lower() == "numpy" or _njit is None:
         return None
     try:
-        return _njit("void(uint8[:, ::1], float32[:, ::1])", cache=True, nogil=True, fastmath=False,
+        import numba
+
+        return _njit(signatures(numba, numba.types.float32[:, ::1]), cache=True, nogil=True, fastmath=False,
                      error_model="numpy")(_saliency_loop(patch_radius, search_radius, knn))
     except Exception as e:  # noqa: BLE001 - any Numba/LLVM failure: the NumPy path gives the same numbers
         log.warning("MSD: Numba could not compile the saliency loop (%s); using the NumPy path",

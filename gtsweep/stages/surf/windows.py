@@ -21,6 +21,8 @@ import os
 
 import numpy as np
 
+from gtsweep.stages.numba_types import signatures
+
 F32 = np.float32
 log = logging.getLogger(__name__)
 
@@ -144,16 +146,6 @@ def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
             row_y += cos_dir[k]
 
 
-def signatures(numba) -> list:
-    """The compiled loop's signatures (image, row starts x and y, column steps cos and sin, output windows): for a
-    writable image and for a read-only one (Ray's object store hands images out read-only, and Numba dispatches on
-    that flag)."""
-    t = numba.types
-    steps, out = t.float32[::1], t.uint8[:, :, ::1]
-    return [t.void(image, steps, steps, steps, steps, out)
-            for image in (t.uint8[:, ::1], t.Array(t.uint8, 2, "C", readonly=True))]
-
-
 @functools.lru_cache(maxsize=1)
 def compiled_loop():
     """The Numba-compiled :func:`_sample_loop` (compiled here, once per process, or read from Numba's cache), or
@@ -165,7 +157,9 @@ def compiled_loop():
     except ImportError:
         return None
     try:
-        return numba.njit(signatures(numba), cache=True, nogil=True, fastmath=False, error_model="numpy")(_sample_loop)
+        steps, out = numba.types.float32[::1], numba.types.uint8[:, :, ::1]
+        return numba.njit(signatures(numba, steps, steps, steps, steps, out), cache=True, nogil=True,
+                          fastmath=False, error_model="numpy")(_sample_loop)
     except Exception as e:  # noqa: BLE001 - any Numba/LLVM failure: the NumPy path gives the same numbers
         log.warning("SURF: Numba could not compile the window sampler (%s); using the NumPy path",
                     str(e).splitlines()[0] if str(e) else type(e).__name__)
