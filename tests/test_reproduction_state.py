@@ -15,7 +15,7 @@ from gtsweep.reproduction.collect import collect, done_units
 from gtsweep.reproduction.design import Unit, design_digest, rebuild_units
 
 SMALL = ["dataset.textures=[gravel,wood]", "dataset.view_size=[256,192]", "detector=[tuned/orb]",
-         "transform=[rotation]", "runner.backend=serial"]
+         "transform=[rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]
 PLAN = {"textures": ["gravel", "wood"], "design": "test"}
 
 
