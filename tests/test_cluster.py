@@ -17,7 +17,7 @@ import pytest
 
 from gtsweep.core.errors import BadInput
 from gtsweep.orchestration.cluster import check_address, cluster_address
-from sweep_helpers import cli_env, session_ends, tiny_overrides
+from sweep_helpers import cli_env, session_ends, session_processes, tiny_overrides
 
 
 class SilentServer:
@@ -170,11 +170,13 @@ def _recorded_cluster() -> str | None:
     return read_ray_address()
 
 
-@pytest.fixture
-def ray_head(tmp_path):
+@pytest.fixture(scope="module")
+def ray_head(tmp_path_factory):
     """A real head as a user starts it (``ray start --head --node-ip-address=127.0.0.1``, 1 CPU, this Python so
     that its workers import this checkout), in a session of its own: stopped by its process group afterwards
-    (never ``ray stop``, which would stop every Ray on the machine)."""
+    (never ``ray stop``, which would stop every Ray on the machine). One head for the module's runs: each joins
+    it as a user's second command would."""
+    tmp_path = tmp_path_factory.mktemp("ray_head")
     port = _free_port()
     head = subprocess.Popen(
         [sys.executable, "-c", "from ray.scripts.scripts import main; main()", "start", "--head", "--block",
@@ -194,13 +196,20 @@ def ray_head(tmp_path):
                 os.killpg(head.pid, sig)
             except ProcessLookupError:
                 break
-            time.sleep(3)
+            _gone_within(head, 3)
         head.wait(timeout=30)
         assert session_ends(head.pid, timeout=10) == []
         from ray._private.utils import get_ray_address_file
 
         if recorded and recorded.endswith(f":{port}"):  # the record ray start left: as ray stop removes it
             Path(get_ray_address_file(None)).unlink(missing_ok=True)
+
+
+def _gone_within(head: subprocess.Popen, seconds: float) -> None:
+    """Wait until every process of ``head``'s session has ended (the head itself reaped), at most ``seconds``."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and (head.poll() is None or session_processes(head.pid)):
+        time.sleep(0.1)
 
 
 @pytest.mark.slow

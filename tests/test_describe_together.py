@@ -100,7 +100,7 @@ def test_a_sweep_with_daisy_gives_the_same_cells_together_or_apart(tmp_path):
     grid = ["detector=[akaze,sift,orb,gftt]", "descriptor=[daisy,brief,sift]", "selector=[nms,anms]",
             "transform=[incremental,rotation]", "transform.rotation.strengths=[0,90]",
             "experiment.reference_counts=[50,150]", "runner.backend=serial", "mlflow.enabled=false",
-            "report.plots=false"]
+            "report.plots=false", "dataset.textures=[gravel]"]  # one texture: the groups are per image
     apart = run_sweep(compose_config(tiny_overrides(tmp_path, *grid, "runner.describe_together=false")),
                       tmp_path / "apart")
     together = run_sweep(compose_config(tiny_overrides(tmp_path, *grid)), tmp_path / "together")

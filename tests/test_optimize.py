@@ -49,8 +49,9 @@ def trial_table(storage: str, name: str):
 
 
 @pytest.fixture(scope="module")
-def first(tmp_path_factory):
+def first(tmp_path_factory, existing_store):
     tmp_path = tmp_path_factory.mktemp("optimize")
+    existing_store(tmp_path / "mlflow.db", tmp_path)  # migrated once per session: these tests read the study's runs
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(tmp_path)  # MLflow's artifacts go to ./mlruns
         return tmp_path, optimise(tmp_path, "experiment.n_trials=3")  # tuned configs go to <tmp_path>/tuned

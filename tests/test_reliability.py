@@ -131,7 +131,7 @@ def test_failed_cells_are_recomputed_on_resume(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_failed_cell_is_computed_again_and_logged_once(tmp_path, monkeypatch):
+def test_a_failed_cell_is_computed_again_and_logged_once(tmp_path, monkeypatch, existing_store):
     """Resume recomputes a cell that ended in error; MLflow keeps one child per cell, the new one."""
     import dataclasses
 
@@ -139,8 +139,10 @@ def test_a_failed_cell_is_computed_again_and_logged_once(tmp_path, monkeypatch):
     from gtsweep.stages.describe import DESCRIPTORS
     from gtsweep.tracking.sweep import SweepTracker
 
+    uri = existing_store(tmp_path / "m.db", tmp_path)  # the store as an earlier sweep left it
+
     def sweep():
-        cfg = compose_config(tiny_overrides(tmp_path, *SMALL[:-2], f"mlflow.tracking_uri=sqlite:///{tmp_path}/m.db"))
+        cfg = compose_config(tiny_overrides(tmp_path, *SMALL[:-2], f"mlflow.tracking_uri={uri}"))
         tracker = SweepTracker(cfg.mlflow, tmp_path / "run", "config: yes", "run")
         outcome = run_sweep(cfg, tmp_path / "run", hooks=(tracker.log_cell,), on_checked=tracker.open,
                             on_start=lambda grid, fp: tracker.start(grid, fp, library_versions()))

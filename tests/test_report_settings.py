@@ -133,12 +133,12 @@ def test_failed_cells_end_the_multirun_in_1_even_when_combining_breaks(tmp_path,
     assert capsys.readouterr().err.strip() == "gtsweep: multirun: 1 cell(s) failed: 0/msd__nms__sift__incremental"
 
 
-def test_the_multiruns_mlflow_run_is_marked_failed_with_the_failed_cells(tmp_path):
+def test_the_multiruns_mlflow_run_is_marked_failed_with_the_failed_cells(tmp_path, existing_store):
     from mlflow.tracking import MlflowClient
 
     from gtsweep.tracking.sweep import close_multirun, open_multirun
 
-    cfg = {"tracking_uri": f"sqlite:///{tmp_path}/m.db", "experiment": "gtsweep"}
+    cfg = {"tracking_uri": existing_store(tmp_path / "m.db", tmp_path), "experiment": "gtsweep"}
     run_id = open_multirun(cfg, "multirun experiment.foreign_scale=own,passthrough", tmp_path)
     close_multirun(cfg, run_id, [], "1 cell(s) failed: 1/msd__nms__sift__incremental")
     run = MlflowClient(cfg["tracking_uri"]).get_run(run_id)

@@ -15,13 +15,16 @@ from gtsweep.reproduction.collect import collect, done_units
 from gtsweep.reproduction.design import Unit, design_digest, rebuild_units
 
 SMALL = ["dataset.textures=[gravel,wood]", "dataset.view_size=[256,192]", "detector=[tuned/orb]",
-         "transform=[rotation]", "runner.backend=serial"]
+         "transform=[rotation]", "transform.rotation.strengths=[0,90]", "runner.backend=serial"]
 PLAN = {"textures": ["gravel", "wood"], "design": "test"}
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
+def run(tmp_path_factory, existing_store):
     root = tmp_path_factory.mktemp("reproduction")
+    (root / "work").mkdir()
+    existing_store(root / "work" / "mlflow.db", root / "work")  # the stores as earlier runs left them (migrated
+    existing_store(root / "single.db", root / "single")  # once per session): these tests read rows, not runs
     first = Unit("rebuild", "table3_detectors", 0, 1)
     collect([first], root / "state", root / "work", PLAN, extra=SMALL)
     keys = tuple(k for k in states.load(root / "state").presets["table3_detectors"] if "__nms__" in k)

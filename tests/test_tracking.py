@@ -32,9 +32,9 @@ def tracked_sweep(tmp_path, uri):
 
 
 @pytest.fixture(scope="module")
-def sweep_store(tmp_path_factory):
+def sweep_store(tmp_path_factory, existing_store):
     tmp_path = tmp_path_factory.mktemp("tracked")
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = existing_store(tmp_path / "mlflow.db", tmp_path)  # migrated once per session: these tests read its runs
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(tmp_path)  # MLflow's default artifact root is ./mlruns
         outcome, tracker = tracked_sweep(tmp_path, uri)

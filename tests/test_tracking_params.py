@@ -18,9 +18,10 @@ from sweep_helpers import compose_config, tiny_overrides
 
 
 @pytest.fixture
-def client(tmp_path, monkeypatch):
+def client(tmp_path, monkeypatch, existing_store):
+    """A new experiment in a migrated store (the session's copy: MLflow's migrations take seconds each time)."""
     monkeypatch.chdir(tmp_path)  # MLflow's default artifact root is ./mlruns
-    client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    client = MlflowClient(existing_store(tmp_path / "mlflow.db", tmp_path))
     return client, client.create_experiment("e")
 
 

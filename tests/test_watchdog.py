@@ -47,11 +47,11 @@ def test_a_vanished_sweep_gets_one_line_with_the_resume_command(tmp_path):
                                           f"{tmp_path / 'out'}; to continue: {RESUME}"]
 
 
-def test_a_vanished_sweep_has_its_parent_run_marked_failed(tmp_path):
+def test_a_vanished_sweep_has_its_parent_run_marked_failed(tmp_path, existing_store):
     from mlflow.tracking import MlflowClient
 
     _cells(tmp_path, 0)
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = existing_store(tmp_path / "mlflow.db", tmp_path)  # migrated once per session
     client = MlflowClient(uri)
     run = client.create_run(client.create_experiment("x"))
     (tmp_path / "out" / "mlflow.json").write_text(json.dumps({"parent_run_id": run.info.run_id,

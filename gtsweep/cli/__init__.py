@@ -6,7 +6,6 @@ import sys
 from unittest import mock
 
 from gtsweep.cli import completion, lifecycle
-from gtsweep.cli.checks import forget_notes, note_left_out, translate
 from gtsweep.cli.lifecycle import fail
 from gtsweep.cli.overrides import register_all
 from gtsweep.cli.search import PRIMARY, PRIMARY_NAME, configs, hydra_args, search_path
@@ -30,6 +29,8 @@ def main(argv: list[str] | None = None) -> None:
         check_config_files(search_path(parsed))  # ./tuned and --config-dir hold data, never code
     except GtsweepError as e:
         fail(e)
+    from gtsweep.cli.checks import forget_notes, note_left_out, translate  # the methods' registries: seconds
+
     register_all()
     forget_notes()
     # Ctrl-C while Hydra composes or imports: one line too; Hydra's errors raised (not printed) become one line

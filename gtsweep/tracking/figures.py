@@ -33,12 +33,12 @@ def axis_label(metric: str) -> str:
 
 def strength_figure(summary: Mapping, experiment: str, title: str):
     """A matplotlib figure: one panel per curve metric against the strength (None: fewer than two strengths)."""
-    from matplotlib.figure import Figure
-
     by_strength = summary.get(f"by_{STEP}") or {}
     metrics = curve_metrics(summary, experiment)
     if len(by_strength) < 2 or not metrics:
         return None
+    from matplotlib.figure import Figure  # only here: a cell without curves does not pay matplotlib's import
+
     strengths = sorted(by_strength, key=float)
     xs = [float(s) for s in strengths]
     transform = (summary.get("methods") or {}).get("transform", "")
