@@ -48,6 +48,8 @@ class Cell:
     rows: list = field(default_factory=list)
     #: frames already assembled, by (textures, limit): every look, table and count reads the same few
     _frames: dict = field(default_factory=dict, repr=False)
+    #: summaries already made, by (textures, the frame's rows): a limit beyond the cell's last item changes nothing
+    _summaries: dict = field(default_factory=dict, repr=False)
 
     def frame(self, textures: list[str], limit: int | None = None) -> pd.DataFrame:
         """The cell's rows in the data set's order; ``limit``: only images or pairs numbered below it (a look of
@@ -77,7 +79,11 @@ class Cell:
         rows = self.frame(textures, limit)
         if self.record["status"] != "ok" or rows.empty:
             return {**head, "n_rows": int(len(rows))}
-        return {**head, **summarize(rows.drop(columns=["transform"], errors="ignore"), self.record["experiment"])}
+        key = (tuple(textures), len(rows))  # a prefix of the same ordered rows: its length names it
+        if key not in self._summaries:
+            self._summaries[key] = summarize(rows.drop(columns=["transform"], errors="ignore"),
+                                             self.record["experiment"])
+        return {**head, **self._summaries[key]}
 
 
 @dataclass
