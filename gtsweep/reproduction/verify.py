@@ -74,9 +74,9 @@ def check(sequential: Sequential, path: Path = REFERENCE, listed: Path = EXPLAIN
         differs = [(theirs.get(k, "-"), mine.get(k, "-")) for k in dict.fromkeys([*theirs, *mine])
                    if theirs.get(k) != mine.get(k)]
         look = f"round {status.round}, {status.per_texture}, {status.nominal:.2g}"
-        listed = [d for d in differs if (text, *d) in known]
+        excused = [d for d in differs if (text, *d) in known]
         checks.append(Check(text, (reference[text]["verdict"], status.finding.verdict),
-                            (reference[text]["look"], look), [d for d in differs if d not in listed], listed))
+                            (reference[text]["look"], look), [d for d in differs if d not in excused], excused))
     return checks
 
 
