@@ -5,9 +5,14 @@ from __future__ import annotations
 
 import pytest
 
+import json
+from pathlib import Path
+
 from gtsweep.cli import main as gtsweep_main
 from gtsweep.cli import overrides as cli
 from gtsweep.cli import search
+from gtsweep.core.rundirs import RUN_RECORD, SWEEP_RECORD
+from gtsweep.tracking.multirun import multirun_record
 
 
 def one_line_error(args, capsys) -> str:
@@ -83,3 +88,41 @@ def test_a_config_planted_in_the_working_directorys_tuned_is_refused_in_one_line
     err = one_line_error(["sweeps=smoke", "runner.backend=serial"], capsys)
     assert err.startswith("gtsweep: error: tuned/detector/planted.yaml is not a tuned method file")
     assert not (tmp_path / "outputs").exists()
+
+
+def _launched_configs(args, tmp_path, monkeypatch) -> tuple[list, list]:
+    """``-m ARGS`` in ``tmp_path`` with a task that runs nothing: (each job's seed, number and directory, each
+    composition's overrides)."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra.core.hydra_config import HydraConfig
+
+    import gtsweep.cli.app
+
+    composed, launched = [], []
+    compose = ConfigLoaderImpl.load_sweep_config
+    monkeypatch.setattr(ConfigLoaderImpl, "load_sweep_config",
+                        lambda self, master, job: composed.append(list(job)) or compose(self, master, job))
+    def app(cfg):  # leaves what a job that started leaves for resume=true: its record and its run record
+        job = Path(HydraConfig.get().runtime.output_dir)
+        (job / SWEEP_RECORD).write_text(json.dumps({"key": multirun_record(job.parent)["key"]}))
+        (job / RUN_RECORD).write_text("{}")
+        launched.append((cfg.seed, HydraConfig.get().job.num, HydraConfig.get().sweep.dir))
+
+    monkeypatch.setattr(gtsweep.cli.app, "app", app)
+    monkeypatch.chdir(tmp_path)
+    gtsweep_main(["-m", *args, "mlflow.enabled=false", "hydra/hydra_logging=none", "hydra/job_logging=none"])
+    return launched, composed
+
+
+def test_a_multirun_composes_each_job_once_and_again_only_when_resume_moves_its_directory(tmp_path, monkeypatch):
+    args = ["detector=[orb]", "descriptor=[orb]", "seed=0,1"]
+    launched, composed = _launched_configs(args, tmp_path, monkeypatch)
+    seeds = [[o for o in job if o.startswith("seed=")] for job in composed]
+    assert seeds == [["seed=0"], ["seed=1"]]  # by the checks; the launcher is handed those
+    first = {directory for _, _, directory in launched}
+    assert [job[:2] for job in launched] == [(0, 0), (1, 1)] and len(first) == 1
+    assert (tmp_path / first.pop()).is_dir()
+    launched, composed = _launched_configs([*args, "resume=true"], tmp_path, monkeypatch)
+    # resume=true points hydra.sweep.dir at the first run after the checks: each job composed again, with it
+    assert [[o for o in job if o.startswith("seed=")] for job in composed] == seeds * 2
+    assert {directory for _, _, directory in launched} == {str(sorted((tmp_path / "multirun").glob("*/*"))[0])}

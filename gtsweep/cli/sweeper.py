@@ -2,6 +2,8 @@
 search path, and every job of every batch composed and checked before the first one runs."""
 from __future__ import annotations
 
+import dataclasses
+
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 
 from gtsweep.cli.checks import SINGLE_GROUPS, check_job, translate
@@ -30,6 +32,36 @@ def globbed(override: str, found: Configs) -> str:
     return f"{group}={','.join(matches)}"
 
 
+class ComposedOnce:
+    """Hydra's config loader, handing the launcher each job's config as the checks composed it, so that a job is
+    composed once; composed again only when the multirun's own overrides changed since (``resume=true`` points
+    ``hydra.sweep.dir`` at the earlier run)."""
+
+    def __init__(self, loader):
+        self.loader, self.composed = loader, {}
+
+    def compose(self, master, job):
+        config = self.loader.load_sweep_config(master, list(job))
+        self.composed[self.key(master, job)] = config
+        return config
+
+    def load_sweep_config(self, master, job):
+        from omegaconf import OmegaConf
+
+        config = self.composed.pop(self.key(master, job), None)
+        if config is None:
+            return self.loader.load_sweep_config(master, job)
+        OmegaConf.copy_cache(from_config=master, to_config=config)  # the master's resolved values, as Hydra's
+        return config
+
+    @staticmethod
+    def key(master, job) -> tuple:
+        return tuple(master.hydra.overrides.hydra), tuple(job)
+
+    def __getattr__(self, name):
+        return getattr(self.loader, name)
+
+
 class CheckingSweeper(BasicSweeper):
     """Globs over the search path; every job checked before any runs, then the multirun's directory claimed and
     its MLflow run opened."""
@@ -45,10 +77,12 @@ class CheckingSweeper(BasicSweeper):
             parsed = OverridesParser.create().parse_overrides([*self._parse_config(), *arguments])
         except Exception as e:  # noqa: BLE001 - Hydra's parser errors, translated
             fail(translate(e, arguments, found))
-        loader = self.hydra_context.config_loader
+        loader = ComposedOnce(self.hydra_context.config_loader)
+        if hasattr(self.launcher, "hydra_context"):  # Hydra's launchers compose each job through it
+            self.launcher.hydra_context = dataclasses.replace(self.launcher.hydra_context, config_loader=loader)
         for job in self.split_arguments(parsed, None)[0]:
             try:
-                check_job(loader.load_sweep_config(self.config, list(job)), job, found)
+                check_job(loader.compose(self.config, job), job, found)
             except Exception as e:  # noqa: BLE001 - Hydra's and OmegaConf's errors, translated
                 fail(translate(e, job, found))
         try:
