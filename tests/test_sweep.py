@@ -130,7 +130,10 @@ def test_ray_two_node_cluster_gives_the_same_numbers_as_serial(tmp_path):
             "mlflow.enabled=false"]
     serial = run_sweep(compose_config(tiny_overrides(tmp_path, SERIAL, *grid)), tmp_path / "serial")
     # in a process of its own: Ray 2.60 cannot join a cluster in a process that has run Ray before
-    env = {**cli_env(), "PYTHONPATH": os.pathsep.join([cli_env()["PYTHONPATH"], str(Path(__file__).parent)])}
+    # Ray's test cluster starts its nodes without token authentication, where `ray start` enables it whenever
+    # ~/.ray/auth_token exists (every local Ray start writes one): its mode said explicitly, as its users say it
+    env = {**cli_env(), "PYTHONPATH": os.pathsep.join([cli_env()["PYTHONPATH"], str(Path(__file__).parent)]),
+           "RAY_AUTH_MODE": "disabled"}
     done = subprocess.run([sys.executable, "-c", _CLUSTER_RUN, str(tmp_path), *grid], env=env, cwd=tmp_path,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
