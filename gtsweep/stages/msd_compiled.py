@@ -24,12 +24,10 @@ unroll and vectorise.
 from __future__ import annotations
 
 import functools
-import logging
-import os
 
 import numpy as np
 
-from gtsweep.stages.numba_types import signatures
+from gtsweep.stages.numba_types import compile_or_none
 
 try:  # Numba is optional (gtsweep[fast]): without it the helpers stay Python and compiled_kernel gives None
     from numba import njit as _njit
@@ -41,7 +39,6 @@ except ImportError:
     def _inline(function):
         return function
 
-log = logging.getLogger(__name__)
 
 #: The environment variable that forces the NumPy saliency ("numpy") instead of the compiled one.
 KERNEL_ENV = "GTSWEEP_MSD_KERNEL"
@@ -164,17 +161,10 @@ def _saliency_loop(patch_radius: int, search_radius: int, knn: int):
 def compiled_kernel(patch_radius: int, search_radius: int, knn: int):
     """The Numba-compiled saliency loop for one setting (compiled here, once per process, or read from Numba's
     cache), or None when Numba is not installed, cannot compile it (a warning), or the NumPy path is forced."""
-    if os.environ.get(KERNEL_ENV, "").lower() == "numpy" or _njit is None:
+    if _njit is None:
         return None
-    try:
-        import numba
-
-        return _njit(signatures(numba, numba.types.float32[:, ::1]), cache=True, nogil=True, fastmath=False,
-                     error_model="numpy")(_saliency_loop(patch_radius, search_radius, knn))
-    except Exception as e:  # noqa: BLE001 - any Numba/LLVM failure: the NumPy path gives the same numbers
-        log.warning("MSD: Numba could not compile the saliency loop (%s); using the NumPy path",
-                    str(e).splitlines()[0] if str(e) else type(e).__name__)
-        return None
+    return compile_or_none(_saliency_loop(patch_radius, search_radius, knn), KERNEL_ENV, "MSD's saliency loop",
+                           lambda t: (t.float32[:, ::1],))
 
 
 def saliency_compiled(image: np.ndarray, patch_radius: int, search_radius: int, knn: int) -> np.ndarray | None:

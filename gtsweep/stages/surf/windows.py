@@ -16,15 +16,12 @@ bytes:
 from __future__ import annotations
 
 import functools
-import logging
-import os
 
 import numpy as np
 
-from gtsweep.stages.numba_types import signatures
+from gtsweep.stages.numba_types import compile_or_none
 
 F32 = np.float32
-log = logging.getLogger(__name__)
 
 #: The environment variable that forces the NumPy sampler ("numpy") instead of the compiled one.
 KERNEL_ENV = "GTSWEEP_SURF_KERNEL"
@@ -150,20 +147,8 @@ def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
 def compiled_loop():
     """The Numba-compiled :func:`_sample_loop` (compiled here, once per process, or read from Numba's cache), or
     None when Numba is not installed, cannot compile it (a warning), or the NumPy path is forced."""
-    if os.environ.get(KERNEL_ENV, "").lower() == "numpy":
-        return None
-    try:
-        import numba
-    except ImportError:
-        return None
-    try:
-        steps, out = numba.types.float32[::1], numba.types.uint8[:, :, ::1]
-        return numba.njit(signatures(numba, steps, steps, steps, steps, out), cache=True, nogil=True,
-                          fastmath=False, error_model="numpy")(_sample_loop)
-    except Exception as e:  # noqa: BLE001 - any Numba/LLVM failure: the NumPy path gives the same numbers
-        log.warning("SURF: Numba could not compile the window sampler (%s); using the NumPy path",
-                    str(e).splitlines()[0] if str(e) else type(e).__name__)
-        return None
+    return compile_or_none(_sample_loop, KERNEL_ENV, "SURF's window sampler",
+                           lambda t: (t.float32[::1],) * 4 + (t.uint8[:, :, ::1],))
 
 
 def batch_pixels() -> int:
