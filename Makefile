@@ -29,16 +29,18 @@ browser:
 	  apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } || \
 	  echo "make: no chromium (apt-get install -y chromium): the browser test will skip"
 
-# pytest's exit code 5 (no test collected) counts as a failure. The 20 slowest tests are listed at the end (the
-# suite took 35 minutes on 2 cores on 2026-11-28, over its ~15-minute budget: docs/development.md).
+# pytest's exit code 5 (no test collected) counts as a failure. The tests run in $(WORKERS) processes (pytest-xdist;
+# most slow tests wait on subprocesses, Ray and MLflow, so two overlap well on 2 cores); WORKERS=0 runs them in this
+# process. The 20 slowest tests are listed at the end (timings: docs/development.md).
+WORKERS ?= 2
 test: $(STAMP) browser lint
-	@$(BIN)/python -m pytest --durations=20; rc=$$?; \
+	@$(BIN)/python -m pytest -n $(WORKERS) --durations=20; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
 
-# The fast lane for development (1123 tests, 3 min 41 s on 2 cores under load on 2026-11-28: docs/development.md);
-# `make test` runs every lane.
+# The fast lane for development (1126 tests, 2 min 16 s in 2 processes on 2 cores under load on 2026-11-28:
+# docs/development.md); `make test` runs every lane.
 test-fast: $(STAMP)
-	@$(BIN)/python -m pytest -m "not slow"; rc=$$?; \
+	@$(BIN)/python -m pytest -n $(WORKERS) -m "not slow"; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
 
 # One linter, configured in pyproject.toml ([tool.ruff]): pycodestyle, pyflakes, bugbear, pyupgrade.
