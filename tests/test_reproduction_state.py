@@ -180,3 +180,9 @@ def test_document_is_written_from_the_committed_state(tmp_path):
     findings = [line for line in text.splitlines() if line.startswith("| ") and "| not rebuilt yet |" in line]
     assert 0 < len(findings) < 12  # Table 3's rebuilt findings are judged, the others wait for their rows
     assert any((docs / "reproduction").iterdir())
+
+
+def test_item_numbers_read_every_id_as_item_number_does():
+    ids = pd.Series(["gravel/synthetic/007", "wood/absolute/12", "carpet/incremental/003-004", "tiles/x9/0"],
+                    dtype="str")
+    assert states.item_numbers(ids).tolist() == [states.item_number(i) for i in ids] == [7, 12, 4, 0]

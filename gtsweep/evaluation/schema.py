@@ -286,9 +286,12 @@ def headline_rows(rows: pd.DataFrame, experiment: str | None) -> pd.DataFrame:
 
 
 def as_floats(values: pd.Series) -> np.ndarray:
-    """:func:`_numbers` as a float64 NumPy array (a float64 column as it is, without a copy)."""
+    """:func:`_numbers` as a float64 NumPy array (a float64 column as it is, without a copy; another NumPy number
+    column converted directly, as :func:`_numbers` would)."""
     if values.dtype == np.float64:
         return values.to_numpy()
+    if isinstance(values.dtype, np.dtype) and values.dtype.kind in "biuf":
+        return values.to_numpy(dtype=np.float64)
     return _numbers(values).to_numpy(dtype=np.float64)
 
 

@@ -22,7 +22,7 @@ from gtsweep.report.samples import against
 from gtsweep.reproduction.design import FROZEN
 from gtsweep.reproduction.findings import (AMBIGUITY_MARGIN, FINDINGS, REPEATABILITY_MARGIN, SUCCESS_MARGIN, SYNTHETIC,
                                            pair_claim)
-from gtsweep.reproduction.state import item_number
+from gtsweep.reproduction.state import item_numbers
 
 #: Images (Tables 2, 3, 6) or pairs (Table 4) per texture that rounds 1-5 evaluated for the picks: a number at or
 #: above it is new data.
@@ -35,7 +35,7 @@ NON_WOOD = "wood"
 
 
 def _numbers(rows) -> np.ndarray:
-    return rows["image"].map(item_number).to_numpy()
+    return item_numbers(rows["image"]).to_numpy()
 
 
 def old_half(half: int, first: int):

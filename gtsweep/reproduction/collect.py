@@ -71,7 +71,7 @@ def harvest(output: Path, unit: Unit) -> tuple[dict, pd.DataFrame]:
 
 
 def _check_window(key: str, rows: pd.DataFrame, unit: Unit) -> None:
-    numbers = set(rows["image"].map(states.item_number))
+    numbers = set(states.item_numbers(rows["image"]))
     if not numbers <= set(range(unit.start, unit.stop)):
         raise BadInput(f"{unit.name}: cell {key} has rows of images or pairs outside numbers "
                        f"{unit.start}-{unit.stop - 1}")

@@ -18,7 +18,7 @@ from gtsweep.reproduction import amended
 from gtsweep.reproduction.findings import Finding, check, judge, survey_variant
 from gtsweep.reproduction.rounds import PRESETS, ROUNDS, counts
 from gtsweep.reproduction.sequential import Sequential, Status
-from gtsweep.reproduction.state import State, item_number
+from gtsweep.reproduction.state import State, item_numbers
 
 PENDING = "pending"
 #: The survey's count per texture: the amended final looks are at t = 1.
@@ -74,7 +74,7 @@ def preset_data(state: State, preset: str, alpha: float, numbers: range | None =
     summaries = state.summaries(preset)
     views = state.views(preset)
     if numbers is not None:  # only these images or pairs (the extension's original tests, which pick nothing)
-        views = {k: v[np.isin(v["image"].map(item_number), list(numbers))] for k, v in views.items()}
+        views = {k: v[np.isin(item_numbers(v["image"]), list(numbers))] for k, v in views.items()}
     frames, _ = survey_variant({preset: frame(summaries)})
     return Data(frames[preset], views, alpha)
 

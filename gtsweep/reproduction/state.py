@@ -39,6 +39,11 @@ def item_number(item: str) -> int:
     return int(re.findall(r"\d+", str(item))[-1])
 
 
+def item_numbers(items: pd.Series) -> pd.Series:
+    """:func:`item_number` of each id, at once."""
+    return items.str.extract(r"(\d+)\D*$", expand=False).astype(np.int64)
+
+
 @dataclass
 class Cell:
     """One cell of a preset as the state holds it: its record and its rows (every chunk's, in order)."""
@@ -63,7 +68,7 @@ class Cell:
         if not self.rows:
             return pd.DataFrame()
         rows = pd.concat(self.rows, ignore_index=True)
-        numbers = rows["image"].map(item_number)
+        numbers = item_numbers(rows["image"])
         if limit is not None:
             rows, numbers = rows[numbers < limit], numbers[numbers < limit]
         rank = rows["texture"].map({t: i for i, t in enumerate(textures)})
@@ -106,7 +111,7 @@ class State:
 
     def reached(self, preset: str) -> int:
         """The count per texture the preset's rows reach: one past the largest image or pair number of any cell."""
-        numbers = [int(r["image"].map(item_number).max()) for c in self.presets.get(preset, {}).values()
+        numbers = [int(item_numbers(r["image"]).max()) for c in self.presets.get(preset, {}).values()
                    for r in c.rows if len(r)]
         return max(numbers, default=-1) + 1
 
