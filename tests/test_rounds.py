@@ -8,7 +8,7 @@ import pandas as pd
 
 from gtsweep.reproduction import rounds as preset_runs
 from gtsweep.reproduction.findings import FINDINGS
-from gtsweep.reproduction.rounds import restriction, run_rounds
+from gtsweep.reproduction.rounds import preset_options, restriction, run_rounds
 from gtsweep.reproduction.sequential import needed_cells
 
 
@@ -30,9 +30,21 @@ def test_a_detection_grid_keeps_each_detectors_survey_selector_and_counts_what_i
                  for t in ("rotation", "noise")]
     table3 = [c for c in available if c["selector"] == ("anms" if c["detector"] == "mser" else "nms")]
     assert restriction(available, table3) == (["++selector_for={fast:nms,mser:anms,sift:nms}"], 0)
-    # a detection grid has no pairings: a detector needed for no cell stays (its 4 cells run extra)
+    # a detection grid has no pairings: without the preset's option names a detector needed for no cell stays
     no_fast = [c for c in available if c["detector"] != "fast" and c["transform"] == "rotation"]
     assert restriction(available, no_fast) == (["transform=[rotation]"], 2)
+    # with them its detectors are cut, named as the preset names them, in the preset's order
+    options = {"fast": "tuned/fast", "mser": "tuned/mser", "sift": "tuned/sift"}
+    assert restriction(available, no_fast, options) == (["detector=[tuned/mser,tuned/sift]", "transform=[rotation]"],
+                                                        0)
+    assert restriction(available, table3, options) == (["++selector_for={fast:nms,mser:anms,sift:nms}"], 0)
+
+
+def test_a_presets_options_are_its_defaults_lists():
+    options = preset_options("table3_detectors")
+    assert len(options) == 13 and options["sift"] == "tuned/sift" and options["mser"] == "tuned/mser"
+    assert preset_options("table3_detectors", "transform") == {t: t for t in ("rotation", "translation", "noise",
+                                                                              "gamma")}
 
 
 def test_the_table_3_findings_need_every_detector_with_its_survey_selector(tmp_path):

@@ -40,7 +40,8 @@ def cut_overrides(unit: Unit, records: dict[str, dict[str, dict]]) -> list[str]:
         raise BadInput(f"{unit.name}: the state holds no record of cell(s) {', '.join(missing[:3])}: run the "
                        f"preset's first window first")
     available = [c["methods"] for c in cells.values()]
-    return rounds.restriction(available, [cells[k]["methods"] for k in unit.cells])[0]
+    return rounds.restriction(available, [cells[k]["methods"] for k in unit.cells],
+                              rounds.preset_options(unit.preset))[0]
 
 
 def harvest(output: Path, unit: Unit) -> tuple[dict, pd.DataFrame]:

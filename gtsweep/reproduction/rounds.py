@@ -25,6 +25,7 @@ from pathlib import Path
 from gtsweep.core.atomic import write_atomically
 from gtsweep.core.config import METHOD_GROUPS
 from gtsweep.core.memory import PeakMemory
+from gtsweep.core.paths import SWEEPS_DIR
 from gtsweep.core.rundirs import PARENT_RECORD, RUN_RECORD
 from gtsweep.reproduction import task_costs
 from gtsweep.reproduction.run_record import RunRecord, copy_absent
@@ -198,12 +199,14 @@ def _identity(methods: dict) -> tuple:
     return tuple(methods.get(k) for k in METHOD_GROUPS)
 
 
-def restriction(available: list[dict], needed: list[dict]) -> tuple[list[str], int]:
+def restriction(available: list[dict], needed: list[dict],
+                options: dict[str, str] | None = None) -> tuple[list[str], int]:
     """Overrides that cut a preset's grid (its cells ``available``) to the cells ``needed``, and how many cells
     beyond those the cut grid still runs: ``transform=[...]`` for the transforms, ``pairings=[...]`` for the
-    (detector, descriptor) pairs, ``++selector_for={...}`` for a detector that needs one of several selectors (a
-    detector needing several but not all of its selectors, or a detection grid's detector needed for no cell, keeps
-    them: the extra cells)."""
+    (detector, descriptor) pairs, ``++selector_for={...}`` for a detector that needs one of several selectors, and
+    in a detection grid ``detector=[...]`` for the detectors needed, named as the preset names them (``options``:
+    :func:`preset_options`; without them, a detector needed for no cell stays). A detector needing several but not
+    all of its selectors keeps them all: the extra cells."""
     if {_identity(c) for c in available} <= {_identity(c) for c in needed}:
         return [], 0
     transforms = list(dict.fromkeys(c["transform"] for c in needed))
@@ -214,16 +217,32 @@ def restriction(available: list[dict], needed: list[dict]) -> tuple[list[str], i
         for c in cells:
             group.setdefault(c["detector"], set()).add(c["selector"])
     pins = {d: next(iter(s)) for d, s in wanted.items() if len(s) == 1 and ran[d] != s}
+    cut = not pose and options and set(wanted) < set(ran) and set(wanted) <= set(options)
+    detectors = [d for d in options if d in wanted] if cut else list(ran)
     overrides = []
+    if len(detectors) < len(ran):
+        overrides.append(f"detector=[{','.join(options[d] for d in detectors)}]")
     if set(transforms) != {c["transform"] for c in available}:
         overrides.append(f"transform=[{','.join(transforms)}]")
     if pose and set(pairs) != {(c["detector"], c["descriptor"]) for c in available if c.get("descriptor")}:
         overrides.append(f"pairings=[{','.join(f'[{d},{s}]' for d, s in pairs)}]")
     if pins:
         overrides.append(f"++selector_for={{{','.join(f'{d}:{s}' for d, s in sorted(pins.items()))}}}")
-    runs = [c for c in available if c["transform"] in transforms and c["selector"] == pins.get(c["detector"],
-            c["selector"]) and (not pose or (c["detector"], c.get("descriptor")) in set(pairs))]
+    runs = [c for c in available if c["transform"] in transforms and c["detector"] in detectors and c["selector"]
+            == pins.get(c["detector"], c["selector"]) and (not pose or (c["detector"], c.get("descriptor")) in
+                                                           set(pairs))]
     return overrides, len({_identity(c) for c in runs} - {_identity(c) for c in needed})
+
+
+def preset_options(preset: str, group: str = "detector") -> dict[str, str]:
+    """The options of ``group`` a preset selects (its defaults list's ``override /<group>: [...]``), by method
+    name: ``{"sift": "tuned/sift", ...}``; empty when it selects none."""
+    import yaml
+
+    defaults = yaml.safe_load((SWEEPS_DIR / f"{preset}.yaml").read_text()).get("defaults") or []
+    chosen = next((e[f"override /{group}"] for e in defaults if isinstance(e, dict) and f"override /{group}" in e),
+                  [])
+    return {option.rsplit("/", 1)[-1]: option for option in ([chosen] if isinstance(chosen, str) else chosen)}
 
 
 def _report(r: dict, log) -> None:
