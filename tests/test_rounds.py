@@ -45,6 +45,7 @@ def test_a_presets_options_are_its_defaults_lists():
     assert len(options) == 13 and options["sift"] == "tuned/sift" and options["mser"] == "tuned/mser"
     assert preset_options("table3_detectors", "transform") == {t: t for t in ("rotation", "translation", "noise",
                                                                               "gamma")}
+    assert preset_options("not_a_preset") == {}
 
 
 def test_the_table_3_findings_need_every_detector_with_its_survey_selector(tmp_path):

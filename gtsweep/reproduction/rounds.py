@@ -164,7 +164,8 @@ def run_rounds(presets, needed: Callable[[int, dict[str, dict]], dict[str, list[
                 if preset in latest:
                     carry(latest[preset]["output"], out)
                     if wanted[preset] is not None:
-                        cut, extra_cells = restriction(cells_of(latest[preset]["output"]), wanted[preset])
+                        cut, extra_cells = restriction(cells_of(latest[preset]["output"]), wanted[preset],
+                                                          preset_options(preset))
                 overrides = [*round_overrides(counts_per_texture), *extra, *PRESET_OVERRIDES.get(preset, []), *cut]
 
                 def start(preset=preset, overrides=overrides, extra_cells=extra_cells):
@@ -236,10 +237,11 @@ def restriction(available: list[dict], needed: list[dict],
 
 def preset_options(preset: str, group: str = "detector") -> dict[str, str]:
     """The options of ``group`` a preset selects (its defaults list's ``override /<group>: [...]``), by method
-    name: ``{"sift": "tuned/sift", ...}``; empty when it selects none."""
+    name: ``{"sift": "tuned/sift", ...}``; empty when it selects none or is not one of the package's presets."""
     import yaml
 
-    defaults = yaml.safe_load((SWEEPS_DIR / f"{preset}.yaml").read_text()).get("defaults") or []
+    path = SWEEPS_DIR / f"{preset}.yaml"
+    defaults = (yaml.safe_load(path.read_text()) or {}).get("defaults") or [] if path.exists() else []
     chosen = next((e[f"override /{group}"] for e in defaults if isinstance(e, dict) and f"override /{group}" in e),
                   [])
     return {option.rsplit("/", 1)[-1]: option for option in ([chosen] if isinstance(chosen, str) else chosen)}
