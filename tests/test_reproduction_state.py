@@ -186,3 +186,16 @@ def test_item_numbers_read_every_id_as_item_number_does():
     ids = pd.Series(["gravel/synthetic/007", "wood/absolute/12", "carpet/incremental/003-004", "tiles/x9/0"],
                     dtype="str")
     assert states.item_numbers(ids).tolist() == [states.item_number(i) for i in ids] == [7, 12, 4, 0]
+
+
+def test_a_detection_an_earlier_chunk_paid_for_is_not_counted_again():
+    def chunk(selector):
+        record = {"cells": {"c": {"methods": {"detector": "sift", "selector": selector, "transform": "rotation"}}}}
+        rows = pd.DataFrame({states.CELL: ["c", "c"], "view": ["w/s/000/rotation/0", "w/s/000/rotation/90"],
+                             "image": ["w/s/000"] * 2, "t_detect": [1.0, 3.0]})
+        return record, rows
+
+    paid = set()
+    assert states.task_seconds(*chunk("nms"), paid) == 6.0  # two test images, the reference at their mean
+    assert states.task_seconds(*chunk("anms"), paid) == 0.0  # the keypoint cache held both detections
+    assert states.task_seconds(*chunk("anms")) == 6.0

@@ -98,7 +98,9 @@ def header(state: State, finished: bool, done_parts: set[str]) -> list[str]:
             f"`{DESIGN_PAGE.relative_to(DESIGN_PAGE.parents[1])}` with its amendment of 2026-11-27 (digest "
             f"{state.plan.get('design')}). Data: the embedded rendered data set (`dataset=survey`: 1288×964 "
             "views, capture physics).", "", status, "",
-            f"Compute spent, counted as recorded task CPU-seconds / 2 (2 cores): **{sum(spent.values()):.1f} h** "
+            f"Compute spent, counted as recorded task CPU-seconds / 2 (2 cores; a detection taken from the "
+            f"keypoint cache of an earlier chunk counted once, as the protocol's estimate counts it): "
+            f"**{sum(spent.values()):.1f} h** "
             f"({', '.join(f'{k} {v:.1f} h' for k, v in sorted(spent.items()))}) against ~{FULL_PROTOCOL_H} h for "
             f"the fixed full protocol (with MSD's port); wall time of the chunks {wall:.1f} h. Parts of the new "
             f"data complete: {', '.join(sorted(done_parts)) or 'none'} of {', '.join(NEW_WINDOWS)}."]

@@ -188,11 +188,11 @@ def load(folder: Path = STATE_DIR) -> State:
     plan = read_plan(folder)
     if plan is None:
         raise BadInput(f"no reproduction state in {folder} (missing plan.json)")
-    chunks, presets = [], {}
+    chunks, presets, paid = [], {}, set()
     for record in chunk_records(folder):
         path = folder / "chunks" / f"{record['name']}.json"
         rows = pd.read_parquet(path.with_suffix(".parquet"))
-        chunks.append({**record, "task_s": task_seconds(record, rows)})
+        chunks.append({**record, "task_s": task_seconds(record, rows, paid)})
         by_cell = dict(tuple(rows.groupby(CELL, sort=False))) if len(rows) else {}
         for key, meta in record["cells"].items():
             cell = presets.setdefault(record["preset"], {}).setdefault(key, Cell(key, meta))
@@ -204,13 +204,19 @@ def load(folder: Path = STATE_DIR) -> State:
     return State(plan, chunks, presets)
 
 
-def task_seconds(record: dict, rows: pd.DataFrame) -> float:
-    """The chunk's recorded task CPU-seconds (detection, description, matching, pose; :mod:`task_costs`)."""
+def task_seconds(record: dict, rows: pd.DataFrame, paid: set | None = None) -> float:
+    """The chunk's recorded task CPU-seconds (detection, description, matching, pose; :mod:`task_costs`).
+    ``paid``: the (detector, view) detections of earlier chunks, which this chunk took from the keypoint cache
+    (not counted again); its own are added to it."""
     if rows.empty:
         return 0.0
     methods = pd.DataFrame([record["cells"][k]["methods"] for k in rows[CELL]], index=rows.index)
     frame = pd.concat([rows.drop(columns=[CELL]), methods.drop(columns=[c for c in methods if c in rows])], axis=1)
-    return float(sum(task_costs.work_seconds(frame.astype({c: "float64" for c in TIMINGS if c in frame})).values()))
+    frame = frame.astype({c: "float64" for c in TIMINGS if c in frame})
+    seconds = task_costs.work_seconds(frame, paid)
+    if paid is not None:
+        paid.update(zip(frame["detector"], frame["view"]))
+    return float(sum(seconds.values()))
 
 
 def _check_same(cell: Cell, meta: dict, path: Path) -> None:
