@@ -30,17 +30,17 @@ browser:
 	  echo "make: no chromium (apt-get install -y chromium): the browser test will skip"
 
 # pytest's exit code 5 (no test collected) counts as a failure. The tests run in $(WORKERS) processes (pytest-xdist;
-# most slow tests wait on subprocesses, Ray and MLflow, so two overlap well on 2 cores); WORKERS=0 runs them in this
-# process. The 20 slowest tests are listed at the end (timings: docs/development.md).
+# most slow tests wait on subprocesses, Ray and MLflow, so two overlap well on 2 cores; tests marked with one
+# xdist_group run on one worker, e.g. those starting real Ray heads); WORKERS=0 runs them in this process. The 20 slowest tests are listed at the end (timings: docs/development.md).
 WORKERS ?= 2
 test: $(STAMP) browser lint
-	@$(BIN)/python -m pytest -n $(WORKERS) --durations=20; rc=$$?; \
+	@$(BIN)/python -m pytest -n $(WORKERS) --dist loadgroup --durations=20; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
 
 # The fast lane for development (1126 tests, 2 min 16 s in 2 processes on 2 cores under load on 2026-11-28:
 # docs/development.md); `make test` runs every lane.
 test-fast: $(STAMP)
-	@$(BIN)/python -m pytest -n $(WORKERS) -m "not slow"; rc=$$?; \
+	@$(BIN)/python -m pytest -n $(WORKERS) --dist loadgroup -m "not slow"; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests: failing"; exit 1; fi; exit $$rc
 
 # One linter, configured in pyproject.toml ([tool.ruff]): pycodestyle, pyflakes, bugbear, pyupgrade.

@@ -19,6 +19,10 @@ from gtsweep.core.errors import BadInput
 from gtsweep.orchestration.cluster import check_address, cluster_address
 from sweep_helpers import cli_env, session_ends, session_processes, tiny_overrides
 
+# Real Ray heads record themselves in one file per machine (/tmp/ray/ray_current_cluster): their tests run one at
+# a time, on one test worker (make test runs pytest-xdist with --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("real_ray_heads")
+
 
 class SilentServer:
     """A TCP port that accepts connections and never says a word (or, ``reply``, answers like a web server)."""
@@ -171,18 +175,31 @@ def _recorded_cluster() -> str | None:
 
 
 @pytest.fixture(scope="module")
-def ray_head(tmp_path_factory):
+def ray_home(tmp_path_factory) -> Path:
+    """A home with a Ray token, as every machine that has started Ray locally has one (``~/.ray/auth_token``):
+    the head and the runs that join it read it there, whether or not this machine's own home has one yet."""
+    import secrets
+
+    home = tmp_path_factory.mktemp("ray_home")
+    (home / ".ray").mkdir()
+    (home / ".ray" / "auth_token").write_text(secrets.token_hex(32))
+    return home
+
+
+@pytest.fixture
+def ray_head(tmp_path_factory, ray_home):
     """A real head as a user starts it (``ray start --head --node-ip-address=127.0.0.1``, 1 CPU, this Python so
     that its workers import this checkout), in a session of its own: stopped by its process group afterwards
-    (never ``ray stop``, which would stop every Ray on the machine). One head for the module's runs: each joins
-    it as a user's second command would."""
+    (never ``ray stop``, which would stop every Ray on the machine). One head per test, the only one while it runs
+    (their xdist group): the machine's record of its cluster (which ``ray start`` writes and the run reads) is
+    one file that every other head would overwrite."""
     tmp_path = tmp_path_factory.mktemp("ray_head")
     port = _free_port()
     head = subprocess.Popen(
         [sys.executable, "-c", "from ray.scripts.scripts import main; main()", "start", "--head", "--block",
          "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=1", "--include-dashboard=false",
-         "--disable-usage-stats"], env=cli_env(), cwd=tmp_path, start_new_session=True, stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE, text=True)
+         "--disable-usage-stats"], env={**cli_env(), "HOME": str(ray_home)}, cwd=tmp_path, start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
         while not (_recorded_cluster() or "").endswith(f":{port}"):
@@ -214,11 +231,12 @@ def _gone_within(head: subprocess.Popen, seconds: float) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("auth_mode", [None, "token"])
-def test_ray_address_of_a_local_head_runs_the_sweep_there(tmp_path, ray_head, auth_mode, monkeypatch):
+def test_ray_address_of_a_local_head_runs_the_sweep_there(tmp_path, ray_head, ray_home, auth_mode, monkeypatch):
     """As ``ray.init(address="auto")`` joins this machine's head with its token; with ``RAY_AUTH_MODE=token`` as
     Ray asks of an explicit address. The head reports its own address (not 127.0.0.1): joining does not refuse."""
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
-    env = {"RAY_ADDRESS": f"127.0.0.1:{ray_head}", **({"RAY_AUTH_MODE": auth_mode} if auth_mode else {})}
+    env = {"RAY_ADDRESS": f"127.0.0.1:{ray_head}", "HOME": str(ray_home),
+           **({"RAY_AUTH_MODE": auth_mode} if auth_mode else {})}
     run = _cli(tmp_path, "runner.backend=ray", "mlflow.enabled=false", "detector=[orb]", "descriptor=[orb]",
                "transform=[incremental]", "hydra.run.dir=out", env=env)
     out, err = run.communicate(timeout=300)

@@ -124,6 +124,7 @@ finally:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("real_ray_heads")  # with test_cluster's: one real head at a time
 def test_ray_two_node_cluster_gives_the_same_numbers_as_serial(tmp_path):
     pytest.importorskip("ray")
     grid = ["detector=[akaze,sift]", "descriptor=[brief,sift]", "selector=[nms]", "transform=[absolute]",
