@@ -135,16 +135,21 @@ def test_committing_files_already_committed_is_done_at_once(tmp_path):
 
 
 def test_collect_stops_in_one_line_on_sigterm(monkeypatch, tmp_path, capsys):
-    """A background run ignores SIGINT: SIGTERM stops collect cleanly, with one line and 128 + 15."""
+    """A background run ignores SIGINT: SIGTERM stops collect cleanly, with one line and 128 + 15, counting the
+    chunks it committed before the cut one."""
     import signal
 
     from gtsweep.core.interrupts import Interrupted
     from gtsweep.reproduction import cli
 
+    done = set()
+
     def cut(*args, **kwargs):
+        done.update({"rebuild/a", "rebuild/b"})  # two chunks committed, then the third cut
         raise Interrupted(signal.SIGTERM)
 
     monkeypatch.setattr(cli, "collect", cut)
+    monkeypatch.setattr(cli, "done_units", lambda folder: set(done))
     monkeypatch.setattr(cli, "check_plan", lambda held, wanted: None)
     monkeypatch.setattr(cli, "plan", lambda: PLAN)
     previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -155,6 +160,7 @@ def test_collect_stops_in_one_line_on_sigterm(monkeypatch, tmp_path, capsys):
             signal.signal(s, handler)
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "SIGTERM" in lines[0] and "the same command resumes" in lines[0]
+    assert "; 2 chunk(s) this run are in the state" in lines[0]
 
 
 @pytest.mark.slow

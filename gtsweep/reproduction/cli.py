@@ -108,7 +108,7 @@ def run(args) -> int:
         _, left = units_now(folder)
         print(f"{left} in {folder} ({states.size_mb(folder):.1f} MB)")
         return 0
-    ran, until = 0, _until(args.until)
+    ran, until, before = 0, _until(args.until), len(done_units(folder))
     for s in SIGNALS:  # also in the background, where a shell leaves SIGINT ignored: SIGTERM stops it cleanly
         signal.signal(s, on_signal)
     try:
@@ -119,6 +119,7 @@ def run(args) -> int:
             if not more or (until is not None and time.time() >= until):
                 break
     except Interrupted as e:
+        ran = len(done_units(folder)) - before  # the chunks committed before the cut one
         print(f"gtsweep.reproduction: {e}; {ran} chunk(s) this run are in the state, the cut one's finished cells "
               f"wait in {args.work}: the same command resumes", file=sys.stderr)
         return 128 + e.signum
