@@ -229,9 +229,10 @@ def restriction(available: list[dict], needed: list[dict],
         overrides.append(f"pairings=[{','.join(f'[{d},{s}]' for d, s in pairs)}]")
     if pins:
         overrides.append(f"++selector_for={{{','.join(f'{d}:{s}' for d, s in sorted(pins.items()))}}}")
-    runs = [c for c in available if c["transform"] in transforms and c["detector"] in detectors and c["selector"]
-            == pins.get(c["detector"], c["selector"]) and (not pose or (c["detector"], c.get("descriptor")) in
-                                                           set(pairs))]
+    kept_pairs = set(pairs)
+    runs = [c for c in available if c["transform"] in transforms and c["detector"] in detectors
+            and c["selector"] == pins.get(c["detector"], c["selector"])
+            and (not pose or (c["detector"], c.get("descriptor")) in kept_pairs)]
     return overrides, len({_identity(c) for c in runs} - {_identity(c) for c in needed})
 
 
