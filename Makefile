@@ -31,7 +31,8 @@ browser:
 
 # pytest's exit code 5 (no test collected) counts as a failure. The tests run in $(WORKERS) processes (pytest-xdist;
 # most slow tests wait on subprocesses, Ray and MLflow, so two overlap well on 2 cores; tests marked with one
-# xdist_group run on one worker, e.g. those starting real Ray heads); WORKERS=0 runs them in this process. The 20 slowest tests are listed at the end (timings: docs/development.md).
+# xdist_group run on one worker, e.g. those starting real Ray heads); WORKERS=0 runs them in this process. The 20
+# slowest tests are listed at the end (timings: docs/development.md).
 WORKERS ?= 2
 test: $(STAMP) browser lint
 	@$(BIN)/python -m pytest -n $(WORKERS) --dist loadgroup --durations=20; rc=$$?; \

@@ -34,14 +34,18 @@ STATE_DIR = PROJECT_DIR / "docs" / "reproduction" / "state"
 CELL = "cell"  # the rows' column naming their cell
 
 
+#: An image or pair id's number: its last run of digits.
+ITEM_NUMBER = r"(\d+)\D*$"
+
+
 def item_number(item: str) -> int:
     """The number of an image or pair id (``texture/split/007`` -> 7)."""
-    return int(re.findall(r"\d+", str(item))[-1])
+    return int(re.search(ITEM_NUMBER, str(item))[1])
 
 
 def item_numbers(items: pd.Series) -> pd.Series:
     """:func:`item_number` of each id, at once."""
-    return items.str.extract(r"(\d+)\D*$", expand=False).astype(np.int64)
+    return items.str.extract(ITEM_NUMBER, expand=False).astype(np.int64)
 
 
 @dataclass
