@@ -205,3 +205,12 @@ def test_a_detection_an_earlier_chunk_paid_for_is_not_counted_again():
     assert states.task_seconds(*chunk("nms"), paid) == 6.0  # two test images, the reference at their mean
     assert states.task_seconds(*chunk("anms"), paid) == 0.0  # the keypoint cache held both detections
     assert states.task_seconds(*chunk("anms")) == 6.0
+
+
+def test_the_header_counts_the_parts_of_the_new_data_done_and_to_come():
+    from gtsweep.reproduction.document import _parts_line
+
+    assert _parts_line({"extension"}) == ("Parts of the new data complete: 1 of 4 (extension); to come: round6, "
+                                          "round6-pairings, restated.")
+    assert _parts_line({"extension", "round6", "round6-pairings", "restated"}).endswith(
+        "4 of 4 (extension, round6, round6-pairings, restated).")

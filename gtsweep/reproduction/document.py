@@ -102,8 +102,16 @@ def header(state: State, finished: bool, done_parts: set[str]) -> list[str]:
             f"keypoint cache of an earlier chunk counted once, as the protocol's estimate counts it): "
             f"**{sum(spent.values()):.1f} h** "
             f"({', '.join(f'{k} {v:.1f} h' for k, v in sorted(spent.items()))}) against ~{FULL_PROTOCOL_H} h for "
-            f"the fixed full protocol (with MSD's port); wall time of the chunks {wall:.1f} h. Parts of the new "
-            f"data complete: {', '.join(sorted(done_parts)) or 'none'} of {', '.join(NEW_WINDOWS)}."]
+            f"the fixed full protocol (with MSD's port); wall time of the chunks {wall:.1f} h. "
+            f"{_parts_line(done_parts)}"]
+
+
+def _parts_line(done_parts: set[str]) -> str:
+    """'Parts of the new data complete: 1 of 4 (extension); to come: round6, ...'."""
+    done = [p for p in NEW_WINDOWS if p in done_parts]
+    to_come = [p for p in NEW_WINDOWS if p not in done_parts]
+    return (f"Parts of the new data complete: {len(done)} of {len(NEW_WINDOWS)} ({', '.join(done) or 'none'})"
+            + (f"; to come: {', '.join(to_come)}." if to_come else "."))
 
 
 def write(state: State, docs: Path, alpha: float, done_parts: set[str], finished: bool,
