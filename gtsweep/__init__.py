@@ -4,8 +4,15 @@
 OpenCV's surf.cpp); ``XFeat_create`` is the learned feature that runs on ``cv2.dnn``. Both are imported on first
 use, so that ``import gtsweep`` (and the first instants of ``python -m gtsweep``, where Ctrl-C must be quiet) loads
 no OpenCV.
+
+Importing gtsweep first pins NumPy's and OpenBLAS's CPU paths, so that views render to the same bytes on every
+x86-64 machine (:mod:`gtsweep.numeric_backends`).
 """
 import importlib
+
+from gtsweep.numeric_backends import pin_this_process
+
+pin_this_process()
 
 __all__ = ["SURF_create", "XFeat_create"]
 __version__ = "0.1.0"

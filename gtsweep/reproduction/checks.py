@@ -7,6 +7,7 @@ import yaml
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import load_dataset
+from gtsweep.numeric_backends import numpy_dispatch_pinned
 from gtsweep.orchestration.view_reuse import item_fingerprints
 from gtsweep.reproduction.state import State, item_number
 
@@ -36,6 +37,14 @@ def rerender(state: State, cache_dir: str, per_split: int = 1) -> int:
         here = item_fingerprints(dataset, split).get(item)
         if here != recorded:
             raise BadInput(f"the renderer here gives other bytes for {item} than the committed state records "
-                           f"(fingerprint {here} vs {recorded}): the rows cannot be trusted on this machine")
+                           f"(fingerprint {here} vs {recorded}): the rows cannot be trusted on this machine "
+                           f"({_platform_hint()})")
         checked += 1
     return checked
+
+
+def _platform_hint() -> str:
+    """Why a view may render to other bytes here (:mod:`gtsweep.numeric_backends`)."""
+    if not numpy_dispatch_pinned():
+        return "NumPy runs its AVX-512 loops in this process: import gtsweep before NumPy"
+    return "the state was rendered on Linux x86-64 with glibc; see docs/reproduction_run.md, 'Portability'"
