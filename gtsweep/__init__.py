@@ -6,11 +6,11 @@ use, so that ``import gtsweep`` (and the first instants of ``python -m gtsweep``
 no OpenCV.
 
 Importing gtsweep first pins NumPy's and OpenBLAS's CPU paths, so that views render to the same bytes on every
-x86-64 machine (:mod:`gtsweep.numeric_backends`).
+x86-64 machine (:mod:`gtsweep.core.numeric_backends`).
 """
 import importlib
 
-from gtsweep.numeric_backends import pin_this_process
+from gtsweep.core.numeric_backends import pin_this_process
 
 pin_this_process()
 

@@ -2,7 +2,7 @@
 import contextlib
 from pathlib import Path
 
-import gtsweep  # noqa: F401 - before NumPy: it pins NumPy's and OpenBLAS's CPU paths (gtsweep.numeric_backends)
+import gtsweep  # noqa: F401 - before NumPy: it pins NumPy's and OpenBLAS's CPU paths (gtsweep.core.numeric_backends)
 import cv2
 import numpy as np
 import pytest

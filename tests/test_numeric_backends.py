@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from gtsweep.numeric_backends import PINNED, pinned_variables
+from gtsweep.core.numeric_backends import PINNED, pinned_variables
 
 X86_V3 = "processor\t: 0\nflags\t\t: fpu sse2 avx avx2 fma bmi1 bmi2 abm f16c movbe avx512f\n"
 
@@ -32,7 +32,7 @@ def test_no_pin_where_numpy_would_refuse_it_or_it_means_nothing(machine, cpuinfo
 
 PROBE = """
 import gtsweep, numpy as np
-from gtsweep.numeric_backends import numpy_dispatch_pinned
+from gtsweep.core.numeric_backends import numpy_dispatch_pinned
 x = np.random.default_rng(3).random(200_000, dtype=np.float32)
 gamma = np.float32(1.37)
 vector = x ** gamma

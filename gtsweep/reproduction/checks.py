@@ -7,7 +7,7 @@ import yaml
 from gtsweep.core.errors import BadInput
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import load_dataset
-from gtsweep.numeric_backends import numpy_dispatch_pinned
+from gtsweep.core.numeric_backends import numpy_dispatch_pinned
 from gtsweep.orchestration.view_reuse import item_fingerprints
 from gtsweep.reproduction.state import State, item_number
 
@@ -44,7 +44,7 @@ def rerender(state: State, cache_dir: str, per_split: int = 1) -> int:
 
 
 def _platform_hint() -> str:
-    """Why a view may render to other bytes here (:mod:`gtsweep.numeric_backends`)."""
+    """Why a view may render to other bytes here (:mod:`gtsweep.core.numeric_backends`)."""
     if not numpy_dispatch_pinned():
         return "NumPy runs its AVX-512 loops in this process: import gtsweep before NumPy"
     return "the state was rendered on Linux x86-64 with glibc; see docs/reproduction_run.md, 'Portability'"
