@@ -14,6 +14,7 @@ the CPU time much less. Say so when quoting.
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import json
 import resource

@@ -14,6 +14,7 @@ query excluded: they do not depend on the map) and how many in-map queries were 
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import time
 

@@ -10,6 +10,7 @@ no pass/fail.
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import contextlib
 import time

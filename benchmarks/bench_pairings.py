@@ -17,6 +17,7 @@ no foreign pairing above 2x its descriptor's native cost. The last lines compare
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import time
 

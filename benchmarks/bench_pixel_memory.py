@@ -9,6 +9,7 @@ descriptor describes 1000 FAST keypoints (its own detector's, for the learned on
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import json
 import subprocess

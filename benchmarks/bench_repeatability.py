@@ -4,6 +4,7 @@
 2. 30 000 SIFT-like keypoints with log-uniform sizes 2..100 px.
 Both use a small rotation about the image centre as H. Run: ``python benchmarks/bench_repeatability.py``.
 """
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import math
 import time
 

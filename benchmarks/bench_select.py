@@ -5,6 +5,7 @@ Prints, per keypoint count, the best of a few runs in milliseconds and the numbe
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import time
 
 import numpy as np

@@ -8,6 +8,7 @@ like for like; OpenCV's own SURF is timed too when this OpenCV is a nonfree buil
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import sys
 import time

@@ -15,6 +15,7 @@ detectors' keypoints of an image in one call per first octave.
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import multiprocessing
 import os

