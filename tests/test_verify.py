@@ -48,3 +48,13 @@ def test_a_listed_difference_does_not_excuse_another(tmp_path):
 def test_the_committed_differences_file_parses():
     rows = verify.explained()  # Table 3 at round 5 (4), Table 5 at round 2 (1)
     assert len(rows) == 5 and all(recorded != rebuilt for _, recorded, rebuilt in rows)
+
+
+def test_the_report_says_others_wait_only_while_some_do():
+    """One of the record's twelve findings rebuilt: the others wait; all twelve: no finding waits."""
+    def done(text):
+        return verify.Check(text, ("holds", "holds"), ("round 1, 1, 0.05",) * 2, [])
+    assert "not rebuilt that far yet" in verify.report([done(FINDING)])[0]
+    every = [done(text) for text in verify.recorded()]
+    assert len(every) == 12 and verify.report(every)[0] == ("12 of 12 findings rebuilt to their recorded last "
+                                                           "look print as recorded")

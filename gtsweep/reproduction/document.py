@@ -116,7 +116,7 @@ def _parts_line(done_parts: set[str]) -> str:
 
 def write(state: State, docs: Path, alpha: float, done_parts: set[str], finished: bool,
           tuning: str | None = None) -> Path:
-    """Write ``docs/REPRODUCTION.md`` and its tables and plots (``docs/reproduction/``) from ``state``."""
+    """Write ``docs/REPRODUCTION.md`` and its tables (``docs/reproduction/``) from ``state``."""
     sequential = looking.replay(state, alpha)
     checks = verify.check(sequential)
     amended = looking.amended_looks(state, sequential, alpha, done_parts)

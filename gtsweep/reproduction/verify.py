@@ -81,8 +81,9 @@ def check(sequential: Sequential, path: Path = REFERENCE, listed: Path = EXPLAIN
 
 
 def report(checks: list[Check]) -> list[str]:
+    pending = " (the others are not rebuilt that far yet)" if len(checks) < len(recorded()) else ""
     lines = [f"{sum(c.equal for c in checks)} of {len(checks)} findings rebuilt to their recorded last look print as "
-             f"recorded (the others are not rebuilt that far yet)"
+             f"recorded{pending}"
              + (f", {sum(c.equal and bool(c.explained) for c in checks)} of them apart from the "
                 f"{sum(len(c.explained) for c in checks)} comparisons whose difference "
                 f"{EXPLAINED.relative_to(PROJECT_DIR)} explains" if any(c.explained for c in checks) else "")]
