@@ -59,6 +59,16 @@ def test_second_load_reads_the_cache(tmp_path, monkeypatch):
     assert [p.name for p in index.parent.parent.iterdir()] == [index.parent.name]  # no staging folder left
 
 
+def test_a_process_running_numpys_avx512_loops_renders_another_data_set(tmp_path, monkeypatch):
+    """NumPy imported before gtsweep on an AVX-512 machine renders some views to other bytes: its data set is
+    cached and hashed apart, and the pinned one keeps its fingerprint."""
+    pinned = small(tmp_path)
+    monkeypatch.setattr(synthetic, "numpy_dispatch_pinned", lambda: False)
+    unpinned = small(tmp_path)
+    assert unpinned.fingerprint() != pinned.fingerprint()
+    assert len({p.name for p in (tmp_path / "datasets").iterdir()}) == 2
+
+
 def test_pair_statistics_follow_the_survey(tmp_path):
     dataset = small(tmp_path, textures=["wood"], n_incremental=40, n_absolute=40, n_synthetic=0)
     stats = stats_command.pair_statistics(dataset)

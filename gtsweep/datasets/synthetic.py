@@ -26,6 +26,7 @@ import yaml
 
 from gtsweep.core.atomic import respect_umask
 from gtsweep.core.errors import BadInput, UnknownMethod
+from gtsweep.core.numeric_backends import numpy_dispatch_pinned
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import capture, floors, geometry, layout, photometric
 from gtsweep.datasets import options as opts
@@ -322,10 +323,16 @@ def from_index(folder: Path, fingerprint: str, name: str = "synthetic") -> Datas
     return Dataset(str(name), textures, images, pairs, fingerprint)
 
 
+def _unpinned_paths() -> tuple[str, ...]:
+    """What the fingerprint adds in a process whose NumPy runs its AVX-512 loops (imported before gtsweep): such a
+    process renders some views to other bytes, so its data set is another, cached and hashed apart."""
+    return () if numpy_dispatch_pinned() else ("numpy AVX-512 loops",)
+
+
 def load(cfg: Mapping) -> Dataset:
     """The embedded data set for ``cfg`` (keys of conf/dataset/synthetic.yaml), rendered on first use."""
     options = check(opts.read(cfg, DEFAULTS, "synthetic"))
-    fingerprint = fingerprint_of(GENERATOR_VERSION, _content_options(options))
+    fingerprint = fingerprint_of(GENERATOR_VERSION, _content_options(options), *_unpinned_paths())
     folder = Path(str(options["cache_dir"])).expanduser() / "datasets" / f"synthetic-{fingerprint}"
     if folder.parent.is_dir():
         remove_dead_leftovers(folder.parent)
