@@ -8,10 +8,11 @@ homographies go through both, so a view rendered on an AVX-512 machine differed 
 ground truth in its last bits, from the same view rendered on an AVX2 machine. OpenCV's AVX-512 paths were measured
 to give the same keypoints and descriptors as its AVX2 paths, so OpenCV is left as it is.
 
-The pin sets, on Linux x86-64 machines whose CPU has the X86_V3 (AVX2) features and only where the user has set
-neither: ``NPY_ENABLE_CPU_FEATURES=X86_V3`` (NumPy raises at import when asked for a feature the machine lacks,
-hence the check) and ``OPENBLAS_CORETYPE=Haswell``. Child processes, Ray's workers among them, inherit it. It
-cannot act in a process that imported NumPy before gtsweep; :func:`pin_this_process` then warns.
+The pin sets, on Linux x86-64 machines whose CPU has the X86_V3 (AVX2) features, ``NPY_ENABLE_CPU_FEATURES=X86_V3``
+(NumPy raises at import when asked for a feature the machine lacks, hence the check) and
+``OPENBLAS_CORETYPE=Haswell``, each where the user has not set it (or, for NumPy, its counterpart
+``NPY_DISABLE_CPU_FEATURES``). Child processes, Ray's workers among them, inherit it. It cannot act in a process
+that imported NumPy before gtsweep; :func:`pin_this_process` then warns.
 
 Not covered: other architectures and operating systems (aarch64, macOS), whose libm ``powf`` and BLAS kernels are
 their own; there a view may render to other bytes, and ``python -m gtsweep.reproduction document`` says so in one
@@ -26,7 +27,9 @@ import warnings
 
 X86_V3_FLAGS = frozenset({"avx", "avx2", "fma", "bmi1", "bmi2", "abm", "f16c", "movbe"})  # /proc/cpuinfo names
 PINNED = {"NPY_ENABLE_CPU_FEATURES": "X86_V3", "OPENBLAS_CORETYPE": "Haswell"}
-USER_SWITCHES = ("NPY_ENABLE_CPU_FEATURES", "NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE")
+#: Per pinned variable, the user's switches that replace it (NumPy refuses both of its switches at once).
+USER_SWITCHES = {"NPY_ENABLE_CPU_FEATURES": ("NPY_ENABLE_CPU_FEATURES", "NPY_DISABLE_CPU_FEATURES"),
+                 "OPENBLAS_CORETYPE": ("OPENBLAS_CORETYPE",)}
 
 
 def cpu_flags(cpuinfo: str) -> frozenset[str]:
@@ -39,13 +42,12 @@ def cpu_flags(cpuinfo: str) -> frozenset[str]:
 
 
 def pinned_variables(environ: dict, machine: str, cpuinfo: str | None) -> dict[str, str]:
-    """The variables to set: :data:`PINNED` on an x86-64 machine with the X86_V3 features, unless the user set
-    any of :data:`USER_SWITCHES` (their choice stands; NumPy refuses both of its switches at once)."""
-    if machine.lower() not in ("x86_64", "amd64") or cpuinfo is None:
+    """The variables to set: :data:`PINNED` on an x86-64 machine with the X86_V3 features, each unless the user
+    set one of its :data:`USER_SWITCHES` (their choice stands)."""
+    if machine.lower() not in ("x86_64", "amd64") or cpuinfo is None or not X86_V3_FLAGS <= cpu_flags(cpuinfo):
         return {}
-    if any(environ.get(name) for name in USER_SWITCHES) or not X86_V3_FLAGS <= cpu_flags(cpuinfo):
-        return {}
-    return dict(PINNED)
+    return {name: value for name, value in PINNED.items()
+            if not any(environ.get(switch) for switch in USER_SWITCHES[name])}
 
 
 def _read_cpuinfo() -> str | None:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import yaml
 
 from gtsweep.core.errors import BadInput
+from gtsweep.core.numeric_backends import numpy_dispatch_pinned
 from gtsweep.core.paths import CONF_DIR
 from gtsweep.datasets import load_dataset
-from gtsweep.core.numeric_backends import numpy_dispatch_pinned
 from gtsweep.orchestration.view_reuse import item_fingerprints
 from gtsweep.reproduction.state import State, item_number
 
