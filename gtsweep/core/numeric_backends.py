@@ -21,7 +21,6 @@ line when a sampled view's fingerprint differs from the state's.
 from __future__ import annotations
 
 import os
-import platform
 import sys
 import warnings
 
@@ -32,13 +31,14 @@ USER_SWITCHES = {"NPY_ENABLE_CPU_FEATURES": ("NPY_ENABLE_CPU_FEATURES", "NPY_DIS
                  "OPENBLAS_CORETYPE": ("OPENBLAS_CORETYPE",)}
 
 
+def _is_flags(line: str) -> bool:
+    return line.partition(":")[0].strip() == "flags"
+
+
 def cpu_flags(cpuinfo: str) -> frozenset[str]:
     """The feature flags of the first processor listed in ``/proc/cpuinfo``'s text."""
-    for line in cpuinfo.splitlines():
-        key, _, value = line.partition(":")
-        if key.strip() == "flags":
-            return frozenset(value.split())
-    return frozenset()
+    found = next((line for line in cpuinfo.splitlines() if _is_flags(line)), "")
+    return frozenset(found.partition(":")[2].split())
 
 
 def pinned_variables(environ: dict, machine: str, cpuinfo: str | None) -> dict[str, str]:
@@ -51,11 +51,18 @@ def pinned_variables(environ: dict, machine: str, cpuinfo: str | None) -> dict[s
 
 
 def _read_cpuinfo() -> str | None:
+    """``/proc/cpuinfo`` up to its first ``flags`` line: the kernel writes the file as it is read, so the other
+    processors' blocks (hundreds on a large machine) are never produced at every ``import gtsweep``."""
+    lines = []
     try:
         with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as handle:
-            return handle.read()
+            for line in handle:
+                lines.append(line)
+                if _is_flags(line):
+                    break
     except OSError:
         return None
+    return "".join(lines)
 
 
 def pin_this_process() -> dict[str, str]:
@@ -63,7 +70,7 @@ def pin_this_process() -> dict[str, str]:
     was loaded already with an AVX-512 target on: the pin then holds for the children only."""
     if sys.platform != "linux":
         return {}
-    variables = pinned_variables(os.environ, platform.machine(), _read_cpuinfo())
+    variables = pinned_variables(os.environ, os.uname().machine, _read_cpuinfo())
     os.environ.update(variables)
     if variables and "numpy" in sys.modules and not numpy_dispatch_pinned():
         warnings.warn("gtsweep: NumPy was imported before gtsweep, so its AVX-512 paths may stay on in this process "
