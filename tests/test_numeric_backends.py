@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from gtsweep.core.numeric_backends import PINNED, pinned_variables
+from gtsweep.core.numeric_backends import PINNED, USER_SWITCHES, pinned_variables
 
 X86_V3 = "processor\t: 0\nflags\t\t: fpu sse2 avx avx2 fma bmi1 bmi2 abm f16c movbe avx512f\n"
 
@@ -46,7 +46,8 @@ print(numpy_dispatch_pinned(), int((vector[:20_000] != scalar).sum()))
 
 def test_float32_power_is_the_c_librarys_in_a_fresh_process():
     """``import gtsweep`` first: the array power equals powf bit for bit (SVML's differed in ~20 % of values)."""
-    env = {k: v for k, v in os.environ.items() if k not in PINNED and k != "NPY_DISABLE_CPU_FEATURES"}
+    switches = {name for names in USER_SWITCHES.values() for name in names}
+    env = {k: v for k, v in os.environ.items() if k not in switches}
     out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, env=env, check=True)
     assert out.stdout.split() == ["True", "0"], out.stdout + out.stderr
 
