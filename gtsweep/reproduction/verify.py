@@ -80,8 +80,9 @@ def check(sequential: Sequential, path: Path = REFERENCE, listed: Path = EXPLAIN
     return checks
 
 
-def report(checks: list[Check]) -> list[str]:
-    pending = " (the others are not rebuilt that far yet)" if len(checks) < len(recorded()) else ""
+def report(checks: list[Check], path: Path = REFERENCE) -> list[str]:
+    """The check's lines; the findings of ``path`` (the reference :func:`check` read) not among ``checks`` wait."""
+    pending = " (the others are not rebuilt that far yet)" if len(checks) < len(recorded(path)) else ""
     lines = [f"{sum(c.equal for c in checks)} of {len(checks)} findings rebuilt to their recorded last look print as "
              f"recorded{pending}"
              + (f", {sum(c.equal and bool(c.explained) for c in checks)} of them apart from the "
