@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -19,8 +21,8 @@ from gtsweep.core.errors import BadInput
 from gtsweep.orchestration.cluster import check_address, cluster_address
 from sweep_helpers import cli_env, session_ends, session_processes, tiny_overrides
 
-# Real Ray heads record themselves in one file per machine (/tmp/ray/ray_current_cluster): their tests run one at
-# a time, on one test worker (make test runs pytest-xdist with --dist loadgroup)
+# Real Ray heads and test clusters, one at a time on one test worker (make test runs pytest-xdist with --dist
+# loadgroup): each takes the 2 cores' worth of processes a sweep does
 pytestmark = pytest.mark.xdist_group("real_ray_heads")
 
 
@@ -168,10 +170,11 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
-def _recorded_cluster() -> str | None:
+def _recorded_cluster(ray_tmpdir: str) -> str | None:
+    """The cluster ``ray start`` recorded under ``RAY_TMPDIR`` (in its ``ray`` folder, as Ray reads it)."""
     from ray._private.utils import read_ray_address
 
-    return read_ray_address()
+    return read_ray_address(str(Path(ray_tmpdir) / "ray"))
 
 
 @pytest.fixture(scope="module")
@@ -190,24 +193,28 @@ def ray_home(tmp_path_factory) -> Path:
 def ray_head(tmp_path_factory, ray_home):
     """A real head as a user starts it (``ray start --head --node-ip-address=127.0.0.1``, 1 CPU, this Python so
     that its workers import this checkout), in a session of its own: stopped by its process group afterwards
-    (never ``ray stop``, which would stop every Ray on the machine). One head per test, the only one while it runs
-    (their xdist group): the machine's record of its cluster (which ``ray start`` writes and the run reads) is
-    one file that every other head would overwrite."""
+    (never ``ray stop``, which would stop every Ray on the machine). Yields its port and the environment a user
+    of this machine has (``HOME`` with the token; ``RAY_TMPDIR``, where ``ray start`` records its cluster and
+    ``auto`` and gtsweep look for it). That Ray directory is the head's own: the machine's
+    /tmp/ray/ray_current_cluster is one file that every Ray test cluster on the machine rewrites and deletes
+    (``cluster_utils.Cluster`` does both), and with ``RAY_AUTH_MODE`` unset a run sends the token only when that
+    record names the head it joins. Short, under /tmp: Ray's sockets live in it."""
     tmp_path = tmp_path_factory.mktemp("ray_head")
+    user = {"HOME": str(ray_home), "RAY_TMPDIR": tempfile.mkdtemp(prefix="rt", dir="/tmp")}
     port = _free_port()
     head = subprocess.Popen(
         [sys.executable, "-c", "from ray.scripts.scripts import main; main()", "start", "--head", "--block",
          "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=1", "--include-dashboard=false",
-         "--disable-usage-stats"], env={**cli_env(), "HOME": str(ray_home)}, cwd=tmp_path, start_new_session=True,
+         "--disable-usage-stats"], env={**cli_env(), **user}, cwd=tmp_path, start_new_session=True,
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
-        while not (_recorded_cluster() or "").endswith(f":{port}"):
-            assert head.poll() is None and time.monotonic() < deadline, head.stderr.read()[-2000:]
+        while not (_recorded_cluster(user["RAY_TMPDIR"]) or "").endswith(f":{port}"):
+            assert head.poll() is None, head.stderr.read()[-2000:]  # ended: its stderr is whole
+            assert time.monotonic() < deadline, f"ray start recorded no cluster under {user['RAY_TMPDIR']} in 120 s"
             time.sleep(0.5)
-        yield port
+        yield port, user
     finally:
-        recorded = _recorded_cluster()
         for sig in (signal.SIGTERM, signal.SIGKILL):
             try:
                 os.killpg(head.pid, sig)
@@ -216,10 +223,7 @@ def ray_head(tmp_path_factory, ray_home):
             _gone_within(head, 3)
         head.wait(timeout=30)
         assert session_ends(head.pid, timeout=10) == []
-        from ray._private.utils import get_ray_address_file
-
-        if recorded and recorded.endswith(f":{port}"):  # the record ray start left: as ray stop removes it
-            Path(get_ray_address_file(None)).unlink(missing_ok=True)
+        shutil.rmtree(user["RAY_TMPDIR"], ignore_errors=True)
 
 
 def _gone_within(head: subprocess.Popen, seconds: float) -> None:
@@ -231,16 +235,16 @@ def _gone_within(head: subprocess.Popen, seconds: float) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("auth_mode", [None, "token"])
-def test_ray_address_of_a_local_head_runs_the_sweep_there(tmp_path, ray_head, ray_home, auth_mode, monkeypatch):
+def test_ray_address_of_a_local_head_runs_the_sweep_there(tmp_path, ray_head, auth_mode, monkeypatch):
     """As ``ray.init(address="auto")`` joins this machine's head with its token; with ``RAY_AUTH_MODE=token`` as
     Ray asks of an explicit address. The head reports its own address (not 127.0.0.1): joining does not refuse."""
+    port, user = ray_head
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
-    env = {"RAY_ADDRESS": f"127.0.0.1:{ray_head}", "HOME": str(ray_home),
-           **({"RAY_AUTH_MODE": auth_mode} if auth_mode else {})}
+    env = {**user, "RAY_ADDRESS": f"127.0.0.1:{port}", **({"RAY_AUTH_MODE": auth_mode} if auth_mode else {})}
     run = _cli(tmp_path, "runner.backend=ray", "mlflow.enabled=false", "detector=[orb]", "descriptor=[orb]",
                "transform=[incremental]", "hydra.run.dir=out", env=env)
     out, err = run.communicate(timeout=300)
     assert run.returncode == 0, err[-2000:]
     cluster = json.loads((tmp_path / "out" / "run.json").read_text())["cluster"]
-    assert cluster["address"].endswith(f":{ray_head}") and (cluster["nodes"], cluster["cpus"]) == (1, 1)
+    assert cluster["address"].endswith(f":{port}") and (cluster["nodes"], cluster["cpus"]) == (1, 1)
     assert f"Ray cluster at {cluster['address']}: 1 node(s), 1 CPUs" in err
