@@ -5,8 +5,8 @@ OpenCV's surf.cpp); ``XFeat_create`` is the learned feature that runs on ``cv2.d
 use, so that ``import gtsweep`` (and the first instants of ``python -m gtsweep``, where Ctrl-C must be quiet) loads
 no OpenCV.
 
-Importing gtsweep first pins NumPy's and OpenBLAS's CPU paths, so that views render to the same bytes on every
-x86-64 machine (:mod:`gtsweep.core.numeric_backends`).
+Importing gtsweep first pins NumPy's and OpenBLAS's CPU paths, so that an AVX-512 machine renders views as an AVX2
+machine does (:mod:`gtsweep.core.numeric_backends`; the few views known to differ still: docs/reproduction_run.md).
 """
 import importlib
 
