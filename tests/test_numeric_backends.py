@@ -60,3 +60,25 @@ def test_the_committed_states_sampled_views_render_to_their_recorded_bytes(tmp_p
     from gtsweep.reproduction import state as states
 
     assert checks.rerender(states.load(states.STATE_DIR), str(tmp_path)) == 3
+
+
+def test_the_audit_renders_every_recorded_item_and_names_those_that_differ(tmp_path):
+    """Two recorded pairs of one texture, the second's fingerprint altered: both are rendered and compared, and
+    only the altered one is named (``python -m gtsweep.reproduction audit``)."""
+    from gtsweep.reproduction import checks
+    from gtsweep.reproduction import state as states
+
+    recorded = checks.recorded_items(states.load(states.STATE_DIR))["incremental"]
+    items = {item: recorded[item] for item in ("carpet/incremental/000", "carpet/incremental/001")}
+    items["carpet/incremental/001"] = "0" * 16
+    held = states.State({"textures": ["carpet"]}, [{"split": "incremental", "items": items}], {})
+    assert checks.audit(held, str(tmp_path), ["carpet"]) == (2, ["carpet/incremental/001"])
+
+
+def test_the_audit_refuses_a_texture_the_state_does_not_hold(tmp_path):
+    from gtsweep.core.errors import BadInput
+    from gtsweep.reproduction import checks
+    from gtsweep.reproduction import state as states
+
+    with pytest.raises(BadInput, match="no recorded texture gravel"):
+        checks.audit(states.State({"textures": ["carpet"]}, [], {}), str(tmp_path), ["gravel"])

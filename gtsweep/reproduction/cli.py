@@ -4,7 +4,9 @@
   (``--commit``: each chunk committed to git as it is written);
 - ``document``: regenerate ``docs/REPRODUCTION.md`` from the state alone (nothing computed);
 - ``verify``: the rebuilt rounds 1-5 against the round-5 record;
-- ``status``: what the state holds and what is left.
+- ``status``: what the state holds and what is left;
+- ``audit``: render every recorded image and pair anew and name those whose bytes differ from the record here
+  (exit 1 if any).
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from gtsweep.reproduction.collect import collect, done_units
 from gtsweep.reproduction.design import NEW_WINDOWS, design_digest, new_units, rebuild_units
 from gtsweep.reproduction.tuned import tuned_digest, tuning_fingerprint
 
-COMMANDS = ("collect", "document", "verify", "status")
+COMMANDS = ("collect", "document", "verify", "status", "audit")
 
 
 def plan() -> dict:
@@ -104,6 +106,13 @@ def run(args) -> int:
         parts, finished = done_parts(folder, held)
         print(f"wrote {document.write(held, Path(args.docs), ALPHA, parts, finished, tuning_fingerprint())}")
         return 0
+    if args.command == "audit":
+        from gtsweep.reproduction import checks
+
+        compared, differ = checks.audit(states.load(folder), args.cache, args.textures)
+        print(f"{compared - len(differ)} of {compared} recorded images and pairs render to their recorded bytes here"
+              + (f"; other bytes: {', '.join(differ)}" if differ else ""))
+        return 1 if differ else 0
     if args.command == "status":
         _, left = units_now(folder)
         print(f"{left} in {folder} ({states.size_mb(folder):.1f} MB)")
@@ -137,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--docs", default=str(PROJECT_DIR / "docs"), help="where REPRODUCTION.md goes")
     parser.add_argument("--commit", action="store_true", help="git-commit each chunk as it is written")
     parser.add_argument("--until", help="HH:MM (local time): start no chunk after it")
+    parser.add_argument("--textures", nargs="+", help="audit: only these textures' items")
     args = parser.parse_args(argv)
     try:
         check_plan(states.read_plan(args.state), plan())
