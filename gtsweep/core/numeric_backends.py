@@ -1,5 +1,5 @@
 """The same bytes on AVX2 and AVX-512 machines: NumPy's SIMD dispatch and OpenBLAS's kernel pinned to what a machine
-with AVX2 runs, before NumPy loads (4 of 690 views audited still differ, cause not found: docs/reproduction_run.md).
+with AVX2 runs, before NumPy loads (4 of 1500 recorded views still differ, cause not found: docs/reproduction_run.md).
 
 Why: NumPy's AVX-512 loops compute ``float32 ** float`` with Intel's SVML, which rounds about one value in five
 differently from the C library's ``powf`` that the AVX2 loops call; OpenBLAS's AVX-512 (SkylakeX) kernel multiplies
