@@ -13,24 +13,33 @@ from gtsweep.orchestration.view_reuse import item_fingerprints
 from gtsweep.reproduction.state import State, item_number
 
 
-def sample_items(state: State, per_split: int = 1) -> list[tuple[str, str, str]]:
-    """(split, item, recorded fingerprint) of the first recorded items of each split."""
-    found, seen = [], {}
-    for chunk in state.chunks:
-        split = chunk["split"]
-        for item, fingerprint in sorted(chunk.get("items", {}).items()):
-            if fingerprint and seen.get(split, 0) < per_split:
-                found.append((split, item, fingerprint))
-                seen[split] = seen.get(split, 0) + 1
-    return found
-
-
 def recorded_items(state: State) -> dict[str, dict[str, str]]:
-    """Every recorded item's fingerprint, per split."""
+    """Every recorded item's fingerprint, per split, in the order the chunks first record them (a chunk's items
+    sorted)."""
     found: dict[str, dict[str, str]] = {}
     for chunk in state.chunks:
-        found.setdefault(chunk["split"], {}).update({k: v for k, v in chunk.get("items", {}).items() if v})
+        items = found.setdefault(chunk["split"], {})
+        for item, fingerprint in sorted(chunk.get("items", {}).items()):
+            if fingerprint:
+                items.setdefault(item, fingerprint)
     return found
+
+
+def sample_items(state: State, per_split: int = 1) -> list[tuple[str, str, str]]:
+    """(split, item, recorded fingerprint) of the first recorded items of each split."""
+    return [(split, item, fingerprint) for split, items in recorded_items(state).items()
+            for item, fingerprint in list(items.items())[:per_split]]
+
+
+def fingerprints_here(split: str, count: int, cache_dir: str, textures: list[str] | None = None,
+                      skip: int = 0) -> dict[str, str]:
+    """The fingerprints of the survey data set's ``split`` items ``skip`` to ``count`` - 1 (of ``textures``, else
+    all), rendered on this machine."""
+    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
+    counts = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0, f"n_{split}": count}
+    dataset = load_dataset({**options, **counts, "cache_dir": cache_dir, "skip_first": {split: skip},
+                            **({"textures": textures} if textures else {})})
+    return item_fingerprints(dataset, split)
 
 
 def audit(state: State, cache_dir: str, textures: list[str] | None = None) -> tuple[int, list[str]]:
@@ -40,16 +49,12 @@ def audit(state: State, cache_dir: str, textures: list[str] | None = None) -> tu
     unknown = sorted(set(textures or []) - set(state.textures()))
     if unknown:
         raise BadInput(f"no recorded texture {', '.join(unknown)} (the state's: {', '.join(state.textures())})")
-    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
     compared, differ = 0, []
     for split, items in recorded_items(state).items():
         items = {k: v for k, v in items.items() if textures is None or k.split("/")[0] in textures}
         if not items:
             continue
-        counts = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0,
-                  f"n_{split}": max(item_number(item) for item in items) + 1}
-        here = item_fingerprints(load_dataset({**options, **counts, "cache_dir": cache_dir,
-                                               **({"textures": textures} if textures else {})}), split)
+        here = fingerprints_here(split, max(item_number(item) for item in items) + 1, cache_dir, textures)
         compared += len(items)
         differ += sorted(item for item, recorded in items.items() if here.get(item) != recorded)
     return compared, differ
@@ -58,14 +63,10 @@ def audit(state: State, cache_dir: str, textures: list[str] | None = None) -> tu
 def rerender(state: State, cache_dir: str, per_split: int = 1) -> int:
     """Render each sampled item alone (its texture, its window) and compare its fingerprint with the record;
     returns how many were checked. A mismatch is one line (:class:`BadInput`)."""
-    options = yaml.safe_load((CONF_DIR / "dataset" / "survey.yaml").read_text())
     checked = 0
     for split, item, recorded in sample_items(state, per_split):
-        texture, number = item.split("/")[0], item_number(item)
-        counts = {"n_synthetic": 0, "n_incremental": 0, "n_absolute": 0, f"n_{split}": number + 1}
-        dataset = load_dataset({**options, **counts, "textures": [texture], "cache_dir": cache_dir,
-                                "skip_first": {split: number}})
-        here = item_fingerprints(dataset, split).get(item)
+        number = item_number(item)
+        here = fingerprints_here(split, number + 1, cache_dir, [item.split("/")[0]], skip=number).get(item)
         if here != recorded:
             raise BadInput(f"the renderer here gives other bytes for {item} than the committed state records "
                            f"(fingerprint {here} vs {recorded}): the rows cannot be trusted on this machine "
