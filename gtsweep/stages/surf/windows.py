@@ -115,30 +115,39 @@ def _bilinear_rows(gray: np.ndarray, pixels: np.ndarray, row_x, row_y, cos_dir, 
 
 
 def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
-    """:func:`sample_numpy`'s arithmetic, one sample at a time (compiled by Numba; plain Python is far too slow)."""
+    """:func:`sample_numpy`'s arithmetic, compiled by Numba (plain Python is far too slow), a window row at a time:
+    one pass finds every sample's pixel and weights (LLVM vectorises it), a second reads the pixels and
+    interpolates. A sample whose 2x2 neighbourhood leaves the image is stored as ``-1 - index`` of its nearest
+    pixel."""
     rows, cols = gray.shape
+    flat = gray.ravel()
     win = out.shape[1]
     one = np.float32(1)
+    at, inside = np.empty(win, np.int64), np.empty(win, np.bool_)
+    a, b = np.empty(win, np.float32), np.empty(win, np.float32)
     for k in range(out.shape[0]):
         cos_k, sin_k = np.float64(cos_dir[k]), np.float64(sin_dir[k])
         row_x, row_y = start_x[k], start_y[k]  # float32, advanced in float32 as window_rows does
         for i in range(win):
             x0, y0 = np.float64(row_x), np.float64(row_y)
             for j in range(win):
-                px = x0 + j * cos_k
-                py = y0 - j * sin_k
+                px, py = x0 + j * cos_k, y0 - j * sin_k
                 fx, fy = np.floor(px), np.floor(py)
-                if 0 <= fx < cols - 1 and 0 <= fy < rows - 1:
-                    ix, iy = int(fx), int(fy)
-                    a, b = np.float32(px - fx), np.float32(py - fy)
-                    not_a, not_b = one - a, one - b
-                    value = (np.float32(gray[iy, ix]) * not_a * not_b + np.float32(gray[iy, ix + 1]) * a * not_b
-                             + np.float32(gray[iy + 1, ix]) * not_a * b + np.float32(gray[iy + 1, ix + 1]) * a * b)
-                    out[k, i, j] = np.uint8(np.rint(value))
-                else:
-                    near_y = min(max(np.rint(py), 0.0), rows - 1.0)
-                    near_x = min(max(np.rint(px), 0.0), cols - 1.0)
-                    out[k, i, j] = gray[int(near_y), int(near_x)]
+                inside[j] = (fx >= 0) & (fx < cols - 1) & (fy >= 0) & (fy < rows - 1)
+                a[j], b[j] = np.float32(px - fx), np.float32(py - fy)
+                near_x, near_y = min(max(np.rint(px), 0.0), cols - 1.0), min(max(np.rint(py), 0.0), rows - 1.0)
+                at[j] = (np.int64(fy) * cols + np.int64(fx) if inside[j]
+                         else -1 - (np.int64(near_y) * cols + np.int64(near_x)))
+            row = out[k, i]
+            for j in range(win):
+                p = at[j]
+                if p < 0:
+                    row[j] = flat[-1 - p]
+                    continue
+                not_a, not_b = one - a[j], one - b[j]
+                value = (np.float32(flat[p]) * not_a * not_b + np.float32(flat[p + 1]) * a[j] * not_b
+                         + np.float32(flat[p + cols]) * not_a * b[j] + np.float32(flat[p + cols + 1]) * a[j] * b[j])
+                row[j] = np.uint8(np.rint(value))
             row_x += sin_dir[k]
             row_y += cos_dir[k]
 
