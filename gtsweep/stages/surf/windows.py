@@ -6,7 +6,7 @@ bytes:
 
 - :func:`sample_numpy`, array operations over batches of windows (the pure path, always available);
 - :func:`sample_compiled`, one loop compiled by Numba (an optional dependency, ``pip install gtsweep[fast]``),
-  ~4x faster: no NumPy formulation gets below ~20 passes over every sample (coordinates, floors, fractions,
+  over 4x faster: no NumPy formulation gets below ~20 passes over every sample (coordinates, floors, fractions,
   index, gathers, eight products, three sums, rounding), which alone cost more than SIFT's whole description.
   It uses only float32/float64 operations in the same order, without fast-math or contraction into FMAs, so
   its numbers do not depend on the machine.
