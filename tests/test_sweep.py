@@ -171,15 +171,15 @@ def test_killed_sweep_resumes_to_the_same_numbers(tmp_path):
     cells = []
     while time.time() < deadline and victim.poll() is None:
         cells = list(tmp_path.glob("outputs/*/*/cells/*.json"))
-        if len(cells) >= 3:
+        if cells:  # kill at the first cell: a loaded machine can write the others in one burst
             break
-        time.sleep(0.2)
+        time.sleep(0.05)
     assert victim.poll() is None, "the sweep finished before it could be killed: make the grid larger"
     os.killpg(victim.pid, signal.SIGKILL)
     victim.wait()
     killed_dir = cells[0].parent.parent
     partial = len(list((killed_dir / "cells").glob("*.json")))
-    assert 3 <= partial < 12
+    assert 1 <= partial < 12
     resumed = run_cli([*args, f"cache.dir={tmp_path}/cache1", "resume=true"], tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     record = json.loads((killed_dir / "run.json").read_text())
