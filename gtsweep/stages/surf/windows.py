@@ -123,7 +123,7 @@ def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
     flat = gray.ravel()
     win = out.shape[1]
     one = np.float32(1)
-    at, inside = np.empty(win, np.int64), np.empty(win, np.bool_)
+    at = np.empty(win, np.int64)
     a, b = np.empty(win, np.float32), np.empty(win, np.float32)
     for k in range(out.shape[0]):
         cos_k, sin_k = np.float64(cos_dir[k]), np.float64(sin_dir[k])
@@ -133,10 +133,10 @@ def _sample_loop(gray, start_x, start_y, cos_dir, sin_dir, out):
             for j in range(win):
                 px, py = x0 + j * cos_k, y0 - j * sin_k
                 fx, fy = np.floor(px), np.floor(py)
-                inside[j] = (fx >= 0) & (fx < cols - 1) & (fy >= 0) & (fy < rows - 1)
+                inside = (fx >= 0) & (fx < cols - 1) & (fy >= 0) & (fy < rows - 1)
                 a[j], b[j] = np.float32(px - fx), np.float32(py - fy)
                 near_x, near_y = min(max(np.rint(px), 0.0), cols - 1.0), min(max(np.rint(py), 0.0), rows - 1.0)
-                at[j] = (np.int64(fy) * cols + np.int64(fx) if inside[j]
+                at[j] = (np.int64(fy) * cols + np.int64(fx) if inside
                          else -1 - (np.int64(near_y) * cols + np.int64(near_x)))
             row = out[k, i]
             for j in range(win):
